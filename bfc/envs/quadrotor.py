@@ -1,0 +1,468 @@
+"""N AscTec Hummingbirds in MuJoCo as one batched TorchRL env.
+
+Why it is built this way:
+- MuJoCo integrates rigid-body and contact dynamics; everything MuJoCo has no element for (the
+  asymmetric first-order motor lag, thrust = k_f w^2, rotor drag) is batched tensor code here.
+- Within one control step the motor command is constant, so the motor lag has a closed form: the
+  thrust of every physics substep is known before the step and the whole batch is integrated with
+  one threaded `mujoco.rollout` call (no Python loop over envs or substeps).
+- Rotor drag depends on the velocity, so it is held constant over the control step (4 ms by default).
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from dataclasses import asdict, dataclass, fields
+from importlib import resources
+
+import mujoco
+import mujoco.rollout
+import numpy as np
+import torch
+from tensordict import TensorDict, TensorDictBase
+from torchrl.data import Bounded, Categorical, Composite, Unbounded
+from torchrl.envs import EnvBase
+
+from bfc import keys
+from bfc.envs.params import ROTOR_DIRECTIONS, ROTOR_YAW_SIGNS, AirframeParams
+from bfc.envs.rotations import euler_to_quat
+
+# Layout of MuJoCo's mjSTATE_FULLPHYSICS vector for this model: time, qpos (3 + 4), qvel (3 + 3).
+_POS, _QUAT, _LINVEL, _ANGVEL = slice(1, 4), slice(4, 8), slice(8, 11), slice(11, 14)
+HULL_HALF_SIZE = (0.2, 0.2, 0.04)  # collision box of the asset (m); its bottom is 0.04 m below the centre
+GROUND_HEIGHT = HULL_HALF_SIZE[2]  # centre height of a level drone resting on the floor
+
+
+def _check(cond: bool, key: str, allowed: str, value) -> None:
+    if not cond:
+        raise ValueError(f"{key} must be {allowed}, got {value!r}")
+
+
+@dataclass
+class RewardParams:
+    """Shaped reward: closer and more level is better (weights per term; see docs/env.md).
+
+    r = scale * (alive - position |p - g| - tilt (1 - cos tilt) - yaw (1 - cos yaw)
+                 - velocity |v|^2 - angular_velocity |w|^2 - action |a|^2
+                 + precision exp(-|p - g|^2 / precision_radius^2)),
+    a = (command - hover speed) / hover speed; a crash adds -scale * crash_penalty.
+    """
+
+    alive: float = 1.0
+    position: float = 1.0
+    tilt: float = 0.5
+    yaw: float = 0.1
+    velocity: float = 0.05
+    angular_velocity: float = 0.005
+    action: float = 0.05
+    precision: float = 1.0
+    precision_radius: float = 0.1
+    crash_penalty: float = 10.0
+    scale: float = 0.01
+
+    def __post_init__(self) -> None:
+        for f in fields(self):
+            v = getattr(self, f.name)
+            _check(isinstance(v, (int, float)) and math.isfinite(v), f"env.reward.{f.name}", "a finite number", v)
+        _check(self.precision_radius > 0, "env.reward.precision_radius", "> 0", self.precision_radius)
+
+
+@dataclass
+class TerminationParams:
+    """When a flight is a crash (terminated). Resting level on the floor is never one."""
+
+    box_xy: float = 5.0  # |x| or |y| beyond this (m) leaves the allowed box
+    box_z: float = 6.0  # z above this (m) leaves the allowed box
+    ground_tilt_deg: float = 60.0  # touching the floor tilted more than this = tipped over
+    crash_speed: float = 2.0  # touching the floor faster than this (m/s, downwards) = hit hard
+
+    def __post_init__(self) -> None:
+        for f in fields(self):
+            v = getattr(self, f.name)
+            _check(isinstance(v, (int, float)) and v > 0, f"env.termination.{f.name}", "> 0", v)
+
+
+@dataclass
+class StartParams:
+    """The task's start distribution D: on the floor at a random (x, y), level, at rest."""
+
+    xy_range: float = 2.0  # x, y uniform in [-xy_range, xy_range]
+    yaw_range_deg: float = 180.0  # yaw uniform in [-yaw_range, yaw_range]
+
+    def __post_init__(self) -> None:
+        _check(self.xy_range >= 0, "env.start.xy_range", ">= 0", self.xy_range)
+        _check(0 <= self.yaw_range_deg <= 180, "env.start.yaw_range_deg", "in [0, 180]", self.yaw_range_deg)
+
+
+def _rotate_to_body_np(q: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """Rotate world vectors v (N, 3) into the body frames of quaternions q (N, 4): R(q)^T v."""
+    w, x, y, z = q.T
+    vx, vy, vz = v.T
+    # t = 2 (u x v) with u = -(x, y, z), the conjugate's vector part; result v + w t + u x t.
+    tx, ty, tz = 2 * (z * vy - y * vz), 2 * (x * vz - z * vx), 2 * (y * vx - x * vy)
+    out = np.empty_like(v)
+    out[:, 0] = vx + w * tx + (z * ty - y * tz)
+    out[:, 1] = vy + w * ty + (x * tz - z * tx)
+    out[:, 2] = vz + w * tz + (y * tx - x * ty)
+    return out
+
+
+def _as(cls, value):
+    if value is None:
+        return cls()
+    if isinstance(value, cls):
+        return value
+    try:
+        return cls(**dict(value))
+    except TypeError as err:
+        allowed = ", ".join(f.name for f in fields(cls))
+        raise ValueError(f"{cls.__name__}: {err}; allowed keys: {allowed}") from None
+
+
+def build_model(airframe: AirframeParams, physics_dt: float) -> mujoco.MjModel:
+    """Compile the shipped MJCF with the given airframe parameters."""
+    path = resources.files("bfc.envs") / "assets" / "hummingbird.xml"
+    spec = mujoco.MjSpec.from_file(str(path))
+    spec.option.timestep = physics_dt
+    spec.option.gravity = [0.0, 0.0, -airframe.gravity]
+    body = spec.body("hummingbird")
+    body.mass = airframe.body_mass
+    body.inertia = list(airframe.inertia)
+    spec.body("imu").mass = airframe.imu_mass
+    for i, (dx, dy) in enumerate(ROTOR_DIRECTIONS):
+        rotor = spec.body(f"rotor_{i}")
+        rotor.mass = airframe.rotor_mass
+        rotor.pos = [dx * airframe.arm_length, dy * airframe.arm_length, airframe.rotor_height]
+        spec.actuator(f"rotor_{i}").gear = [0, 0, 1, 0, 0, ROTOR_YAW_SIGNS[i] * airframe.moment_constant]
+    return spec.compile()
+
+
+class QuadrotorEnv(EnvBase):
+    """`num_envs` Hummingbirds flown by motor speed commands (rad/s).
+
+    Keys: `"action"` (N, 4) in; `"odometry"` (N, 18), `"goal"` (N, 3) and ground truth under
+    `"state"` out (see bfc.keys). `reset()` draws starts from the task distribution D; a reset
+    tensordict may carry `"start_state"` (N, 12) to place envs exactly. NaN entries of a start
+    state mean "draw this entry from D", so samplers can each fill in the part they own.
+    """
+
+    batch_locked = True
+
+    def __init__(
+        self,
+        num_envs: int = 1,
+        *,
+        control_hz: float = 250.0,
+        physics_dt: float = 0.002,
+        episode_seconds: float = 5.0,
+        goal: tuple[float, float, float] = (0.0, 0.0, 1.5),
+        airframe: AirframeParams | dict | None = None,
+        reward: RewardParams | dict | None = None,
+        termination: TerminationParams | dict | None = None,
+        start: StartParams | dict | None = None,
+        start_motors: str = "rest",
+        num_threads: int | None = None,
+        seed: int | None = None,
+        device: str = "cpu",
+    ):
+        _check(isinstance(num_envs, int) and num_envs >= 1, "env.num_envs", "an integer >= 1", num_envs)
+        _check(control_hz > 0, "env.control_hz", "> 0", control_hz)
+        _check(physics_dt > 0, "env.physics_dt", "> 0", physics_dt)
+        substeps = round(1.0 / (control_hz * physics_dt))
+        _check(
+            substeps >= 1 and abs(substeps * physics_dt * control_hz - 1.0) < 1e-6,
+            "env.control_hz",
+            f"such that 1/control_hz is a whole number of physics steps of {physics_dt} s",
+            control_hz,
+        )
+        _check(episode_seconds > 0, "env.episode_seconds", "> 0", episode_seconds)
+        _check(len(goal) == 3, "env.goal", "3 numbers (x, y, z)", goal)
+        _check(start_motors in ("rest", "hover"), "env.start_motors", "'rest' or 'hover'", start_motors)
+        if num_threads is None:
+            num_threads = os.cpu_count() or 1
+        _check(isinstance(num_threads, int) and num_threads >= 1, "env.num_threads", "an integer >= 1", num_threads)
+        super().__init__(device=device, batch_size=torch.Size([num_envs]))
+
+        self.num_envs = num_envs
+        self.airframe = _as(AirframeParams, airframe)
+        self.reward_params = _as(RewardParams, reward)
+        self.termination = _as(TerminationParams, termination)
+        self.start_params = _as(StartParams, start)
+        self.control_hz = float(control_hz)
+        self.physics_dt = float(physics_dt)
+        self.substeps = substeps
+        self.dt = substeps * physics_dt
+        self.max_episode_steps = max(1, round(episode_seconds / self.dt))
+        self.hover_speed = self.airframe.hover_speed
+        self.max_rotor_speed = self.airframe.max_rotor_speed
+        self.ground_height = GROUND_HEIGHT
+        self.num_threads = num_threads
+        self.start_motors = start_motors
+        self.physics_failures = 0  # envs whose state became non-finite (terminated and replaced)
+
+        self.model = build_model(self.airframe, self.physics_dt)
+        self._datas = [mujoco.MjData(self.model) for _ in range(num_threads)]
+        self._models = [self.model] * num_envs  # rollout's fast path takes one model per env
+        self._rollout = mujoco.rollout.Rollout(nthread=num_threads)
+        self._nstate = mujoco.mj_stateSize(self.model, mujoco.mjtState.mjSTATE_FULLPHYSICS)
+        assert self._nstate == 14, "asset layout changed: update the state slices"
+
+        # Per-env state (float64, as MuJoCo integrates).
+        n, f64 = num_envs, torch.float64
+        self._physics = torch.zeros(n, self._nstate, dtype=f64)
+        self._physics_np = self._physics.numpy()
+        self._out = np.zeros((n, substeps, self._nstate))
+        self._ctrl = torch.zeros(n, substeps, self.model.nu, dtype=f64)
+        self._ctrl_np = self._ctrl.numpy()
+        self._obs_np = np.zeros((n, 30))  # staging buffer for the outputs (see _observe)
+        self._motor = torch.zeros(n, 4, dtype=f64)
+        self._lin_acc = torch.zeros(n, 3, dtype=f64)
+        self._ang_acc = torch.zeros(n, 3, dtype=f64)
+        self._steps = torch.zeros(n, dtype=torch.long)
+        self._goal = torch.tensor(goal, dtype=torch.float32).expand(n, 3).clone()
+        # Midpoints of the substeps, for the closed-form motor lag.
+        self._sub_mid_np = ((np.arange(substeps) + 0.5) * physics_dt).reshape(1, substeps, 1)
+        self._cos_ground_tilt = math.cos(math.radians(self.termination.ground_tilt_deg))
+        self._generator = torch.Generator()
+        self._generator.manual_seed(0 if seed is None else seed)
+        self._make_specs()
+
+    # ----------------------------------------------------------------- specs
+    def _make_specs(self) -> None:
+        n = self.num_envs
+        vec = lambda k: Unbounded(shape=(n, k), dtype=torch.float32)  # noqa: E731
+        self.observation_spec = Composite(
+            {
+                keys.ODOMETRY: vec(18),
+                keys.GOAL: vec(3),
+                keys.STATE: Composite(
+                    position=vec(3),
+                    quaternion=vec(4),
+                    linear_velocity=vec(3),
+                    angular_velocity=vec(3),
+                    motor_speeds=vec(4),
+                    shape=(n,),
+                ),
+            },
+            shape=(n,),
+        )
+        self.action_spec = Bounded(low=0.0, high=self.max_rotor_speed, shape=(n, 4), dtype=torch.float32)
+        self.reward_spec = Unbounded(shape=(n, 1), dtype=torch.float32)
+        flag = lambda: Categorical(2, shape=(n, 1), dtype=torch.bool)  # noqa: E731
+        self.done_spec = Composite(done=flag(), terminated=flag(), truncated=flag(), shape=(n,))
+
+    # ----------------------------------------------------------------- public helpers
+    def set_goal(self, goal, env_ids: torch.Tensor | None = None) -> None:
+        """Set the desired position of all envs, or of `env_ids` (a mask or indices)."""
+        goal = torch.as_tensor(goal, dtype=torch.float32)
+        if goal.shape[-1:] != (3,):
+            raise ValueError(f"goal must have shape (3,) or (n, 3), got {tuple(goal.shape)}")
+        if env_ids is None:
+            self._goal[:] = goal
+        else:
+            self._goal[env_ids] = goal
+
+    def sample_default_starts(self, n: int | None = None) -> torch.Tensor:
+        """(n, 12) starts from the task distribution D: on the floor, level, at rest."""
+        n = self.num_envs if n is None else n
+        g = self._generator
+        start = torch.zeros(n, 12, dtype=torch.float64)
+        r = self.start_params.xy_range
+        start[:, 0:2] = (torch.rand(n, 2, generator=g, dtype=torch.float64) * 2 - 1) * r
+        start[:, 2] = self.ground_height
+        yaw = math.radians(self.start_params.yaw_range_deg)
+        start[:, 5] = (torch.rand(n, generator=g, dtype=torch.float64) * 2 - 1) * yaw
+        return start
+
+    # ----------------------------------------------------------------- TorchRL hooks
+    def _set_seed(self, seed: int | None) -> None:
+        self._generator.manual_seed(0 if seed is None else int(seed))
+
+    def _reset(self, tensordict: TensorDictBase | None = None, **kwargs) -> TensorDictBase:
+        n = self.num_envs
+        mask = torch.ones(n, dtype=torch.bool)
+        given = None
+        if tensordict is not None:
+            if keys.RESET in tensordict.keys():
+                mask = tensordict.get(keys.RESET).reshape(n).clone()
+            given = tensordict.get(keys.START_STATE, None)
+        start = self.sample_default_starts()
+        if given is not None:
+            if given.shape != (n, 12):
+                raise ValueError(f"start_state must have shape ({n}, 12), got {tuple(given.shape)}")
+            given = given.to(torch.float64)
+            start = torch.where(torch.isnan(given), start, given)
+        self._place(start, mask)
+        return self._observe(self._physics, reward=None, terminated=None, truncated=None)
+
+    def _place(self, start: torch.Tensor, mask: torch.Tensor) -> None:
+        """Write starts into the masked envs' physics state.
+
+        Motors start at rest, or with `start_motors="hover"` at hover speed when the start is in
+        the air (a drone perturbed in flight rather than dropped).
+        """
+        phys = self._physics.clone()
+        phys[:, _POS] = start[:, 0:3]
+        phys[:, _QUAT] = euler_to_quat(start[:, 3:6])
+        phys[:, _LINVEL] = start[:, 6:9]
+        phys[:, _ANGVEL] = start[:, 9:12]
+        m = mask.unsqueeze(-1)
+        self._physics[:] = torch.where(m, phys, self._physics)
+        spin = 0.0
+        if self.start_motors == "hover":
+            spin = torch.where(start[:, 2:3] > self.ground_height + 0.01, self.hover_speed, 0.0)
+        self._motor[:] = torch.where(m, spin, self._motor)  # in place: NumPy views alias these
+        self._lin_acc[:] = torch.where(m, 0.0, self._lin_acc)
+        self._ang_acc[:] = torch.where(m, 0.0, self._ang_acc)
+        self._steps[:] = torch.where(mask, 0, self._steps)
+
+    def _step(self, tensordict: TensorDictBase) -> TensorDictBase:
+        action = tensordict.get(keys.ACTION)
+        if action.shape != (self.num_envs, 4):
+            raise ValueError(
+                f"action must have shape ({self.num_envs}, 4) (motor speeds in rad/s), got {tuple(action.shape)}"
+            )
+        # The hot path is NumPy float64 on views of the state tensors: a NumPy op on (N, 4)
+        # costs about a third of a torch op, and MuJoCo integrates in float64 anyway.
+        cmd = action.detach().numpy().astype(np.float64)
+        if not np.isfinite(cmd).all():
+            bad = np.flatnonzero(~np.isfinite(cmd).all(-1))[:8].tolist()
+            raise ValueError(
+                f"action has NaN or infinite motor speeds for envs {bad}; a controller must output finite rad/s"
+            )
+        a = self.airframe
+        np.clip(cmd, 0.0, a.max_rotor_speed, out=cmd)
+        w0 = self._motor.numpy()
+        tau = np.where(cmd >= w0, a.time_constant_up, a.time_constant_down)
+        # Closed-form first-order lag at each substep's midpoint -> thrust per substep.
+        w_sub = cmd[:, None] + (w0 - cmd)[:, None] * np.exp(-self._sub_mid_np / tau[:, None])
+        old = self._physics_np.copy()
+        v_body = _rotate_to_body_np(old[:, _QUAT], old[:, _LINVEL])
+        spin = np.abs(w0).sum(-1, keepdims=True)
+        ctrl = self._ctrl_np
+        ctrl[:, :, 0:4] = a.motor_constant * w_sub * w_sub
+        ctrl[:, :, 4:6] = (-a.rotor_drag_coefficient * spin * v_body[:, 0:2])[:, None]
+        ctrl[:, :, 6:8] = (-a.rolling_moment_coefficient * spin * v_body[:, 0:2])[:, None]
+        self._integrate()
+        w0[:] = cmd + (w0 - cmd) * np.exp(-self.dt / tau)
+        new = self._physics_np
+        new[:] = self._out[:, -1]
+
+        # Physics failures: terminate that env and put it somewhere finite; never crash the batch.
+        # MuJoCo resets a diverged mjData itself (time restarts at 0), so a clock that did not
+        # advance is a failure too.
+        failed = ~np.isfinite(new).all(-1) | (new[:, 0] < old[:, 0] + self.dt - 0.5 * self.physics_dt)
+        if failed.any():
+            self.physics_failures += int(failed.sum())
+            self._place(self.sample_default_starts(), torch.from_numpy(failed))
+        keep = ~failed[:, None]
+        self._lin_acc.numpy()[:] = np.where(keep, (new[:, _LINVEL] - old[:, _LINVEL]) / self.dt, 0.0)
+        self._ang_acc.numpy()[:] = np.where(keep, (new[:, _ANGVEL] - old[:, _ANGVEL]) / self.dt, 0.0)
+        self._steps += 1
+
+        reward, crashed = self._reward_and_crash(new, cmd, old[:, 10])
+        terminated = torch.from_numpy(crashed | failed)
+        truncated = (self._steps >= self.max_episode_steps) & ~terminated
+        return self._observe(new, reward, terminated, truncated)
+
+    def _integrate(self) -> None:
+        self._rollout.rollout(
+            self._models,
+            self._datas,
+            self._physics_np,
+            self._ctrl_np,
+            state=self._out,
+            skip_checks=True,
+            nstep=self.substeps,
+        )
+
+    def _reward_and_crash(self, phys: np.ndarray, cmd: np.ndarray, prev_vz: np.ndarray):
+        """Shaped reward (see RewardParams) and the crash flag (see TerminationParams)."""
+        rp, tp = self.reward_params, self.termination
+        pos = phys[:, _POS]
+        w, x, y, z = phys[:, _QUAT].T
+        dist = np.sqrt(np.square(pos - self._goal.numpy()).sum(-1))
+        cos_tilt = 1 - 2 * (x * x + y * y)  # world-z component of the body z axis
+        cos_yaw = np.cos(np.arctan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z)))
+        act = (cmd - self.hover_speed) / self.hover_speed
+        r = (
+            rp.alive
+            - rp.position * dist
+            - rp.tilt * (1 - cos_tilt)
+            - rp.yaw * (1 - cos_yaw)
+            - rp.velocity * np.square(phys[:, _LINVEL]).sum(-1)
+            - rp.angular_velocity * np.square(phys[:, _ANGVEL]).sum(-1)
+            - rp.action * np.square(act).sum(-1)
+            + rp.precision * np.exp(-np.square(dist / rp.precision_radius))
+        )
+        # Lowest point of the collision box: is the drone touching the floor?
+        hx, hy, hz = HULL_HALF_SIZE
+        lowest = pos[:, 2] - (
+            hx * np.abs(2 * (x * z - w * y)) + hy * np.abs(2 * (y * z + w * x)) + hz * np.abs(cos_tilt)
+        )
+        touching = lowest < 0.005
+        tipped = cos_tilt < self._cos_ground_tilt
+        hard = prev_vz < -tp.crash_speed
+        outside = (np.abs(pos[:, 0:2]) > tp.box_xy).any(-1) | (pos[:, 2] > tp.box_z)
+        crashed = (touching & (tipped | hard)) | outside
+        r = np.where(crashed, r - rp.crash_penalty, r) * rp.scale
+        return r, crashed
+
+    def _observe(self, phys, reward, terminated, truncated) -> TensorDictBase:
+        """Pack every output into one float32 buffer (new each step); entries are views into it."""
+        n, buf = self.num_envs, self._obs_np
+        p = phys.numpy() if isinstance(phys, torch.Tensor) else phys
+        w, x, y, z = p[:, _QUAT].T
+        buf[:, 0:3] = p[:, _POS]
+        buf[:, 3:6] = p[:, _LINVEL]
+        buf[:, 6:9] = self._lin_acc.numpy()
+        buf[:, 9] = np.arctan2(2 * (w * x + y * z), 1 - 2 * (x * x + y * y))
+        buf[:, 10] = np.arcsin(np.clip(2 * (w * y - z * x), -1.0, 1.0))
+        buf[:, 11] = np.arctan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))
+        buf[:, 12:15] = p[:, _ANGVEL]
+        buf[:, 15:18] = self._ang_acc.numpy()
+        buf[:, 18:22] = p[:, _QUAT]
+        buf[:, 22:26] = self._motor.numpy()
+        buf[:, 26:29] = self._goal.numpy()
+        if reward is None:
+            terminated = truncated = torch.zeros(n, dtype=torch.bool)
+            buf[:, 29] = 0.0
+        else:
+            buf[:, 29] = reward
+        flat = torch.from_numpy(buf.astype(np.float32))
+        out = {
+            keys.ODOMETRY: flat[:, 0:18],
+            keys.GOAL: flat[:, 26:29],
+            keys.STATE: {
+                "position": flat[:, 0:3],
+                "quaternion": flat[:, 18:22],
+                "linear_velocity": flat[:, 3:6],
+                "angular_velocity": flat[:, 12:15],
+                "motor_speeds": flat[:, 22:26],
+            },
+            keys.TERMINATED: terminated.unsqueeze(-1),
+            keys.TRUNCATED: truncated.unsqueeze(-1),
+            keys.DONE: (terminated | truncated).unsqueeze(-1),
+        }
+        if reward is not None:
+            out[keys.REWARD] = flat[:, 29:30]
+        return TensorDict(out, batch_size=self.batch_size)
+
+    def close(self, *, raise_if_closed: bool = True) -> None:
+        if self._rollout is not None:
+            self._rollout.close()
+            self._rollout = None
+        super().close(raise_if_closed=raise_if_closed)
+
+    def config(self) -> dict:
+        """The physical set-up, for logging beside results."""
+        return {
+            "control_hz": self.control_hz,
+            "physics_dt": self.physics_dt,
+            "max_episode_steps": self.max_episode_steps,
+            "airframe": asdict(self.airframe),
+            "reward": asdict(self.reward_params),
+            "termination": asdict(self.termination),
+            "start": asdict(self.start_params),
+        }

@@ -1,0 +1,256 @@
+"""Physics, interface and robustness of QuadrotorEnv."""
+
+import math
+
+import pytest
+import torch
+from torchrl.envs.utils import check_env_specs
+
+from bfc import keys
+from bfc.envs import QuadrotorEnv
+from bfc.envs.rotations import euler_to_quat, quat_to_euler, quat_to_matrix
+
+
+def air_start(n, z=1.5, **entries):
+    start = torch.zeros(n, 12)
+    start[:, 2] = z
+    for name, value in entries.items():
+        idx = {"x": 0, "y": 1, "roll": 3, "pitch": 4, "yaw": 5, "vx": 6, "vy": 7, "vz": 8, "wx": 9, "wy": 10, "wz": 11}
+        start[:, idx[name]] = value
+    return start
+
+
+def reset_to(env, start):
+    return env.reset(env.reset().set(keys.START_STATE, start))
+
+
+def fly(env, td, action, steps):
+    for _ in range(steps):
+        td = env.step(td.set(keys.ACTION, action.expand(env.num_envs, 4).clone()))["next"]
+    return td
+
+
+def test_check_env_specs():
+    env = QuadrotorEnv(3, seed=0)
+    check_env_specs(env)
+    assert env.batch_size == torch.Size([3])
+    assert env.action_spec.shape == (3, 4)
+    assert float(env.action_spec.space.high.max()) == pytest.approx(838.0)
+
+
+def test_hover_at_analytic_speed_holds_altitude():
+    env = QuadrotorEnv(2, start_motors="hover", seed=0)
+    a = env.airframe
+    hover = math.sqrt(a.total_mass * a.gravity / (4 * a.motor_constant))
+    assert env.hover_speed == pytest.approx(hover)
+    assert 450 < hover < 460  # SPEC.md: about 453-458 rad/s
+    td = reset_to(env, air_start(2))
+    z = []
+    for _ in range(250):  # 1 s at 250 Hz
+        td = fly(env, td, torch.full((4,), hover), 1)
+        z.append(td[keys.POSITION][:, 2])
+    z = torch.stack(z)
+    assert (z - 1.5).abs().max() < 0.02
+    assert td[keys.POSITION][:, :2].abs().max() < 1e-3
+
+
+def test_yaw_sign_cw_pair_faster_yaws_counter_clockwise():
+    env = QuadrotorEnv(1, start_motors="hover")
+    h = env.hover_speed
+    td = reset_to(env, air_start(1))
+    td = fly(env, td, torch.tensor([h + 20, h - 20, h + 20, h - 20]), 50)
+    assert td[keys.ANGULAR_VELOCITY][0, 2] > 0.1  # positive yaw rate about +z
+    assert td[keys.ODOMETRY][0, 11] > 0  # yaw grew
+    td = reset_to(env, air_start(1))
+    td = fly(env, td, torch.tensor([h - 20, h + 20, h - 20, h + 20]), 50)
+    assert td[keys.ANGULAR_VELOCITY][0, 2] < -0.1
+
+
+@pytest.mark.parametrize("rotor, arm", [(0, (1.0, 0.0)), (1, (0.0, 1.0)), (2, (-1.0, 0.0)), (3, (0.0, -1.0))])
+def test_raising_one_rotor_lifts_that_side(rotor, arm):
+    env = QuadrotorEnv(1, start_motors="hover")
+    cmd = torch.full((4,), env.hover_speed)
+    cmd[rotor] += 30
+    td = fly(env, reset_to(env, air_start(1)), cmd, 25)
+    rot = quat_to_matrix(td[keys.QUATERNION][0])
+    arm_world = rot @ torch.tensor([arm[0], arm[1], 0.0])
+    assert arm_world[2] > 0.01  # that arm now points upwards
+    # torque = r x F: the body rotates about r x z
+    expected_axis = torch.linalg.cross(torch.tensor([arm[0], arm[1], 0.0]), torch.tensor([0.0, 0.0, 1.0]))
+    assert float(td[keys.ANGULAR_VELOCITY][0] @ expected_axis) > 0.1
+
+
+def test_free_fall_matches_gravity():
+    env = QuadrotorEnv(1)
+    td = reset_to(env, air_start(1, z=3.0))
+    steps = 75  # 0.3 s
+    td = fly(env, td, torch.zeros(4), steps)
+    t = steps * env.dt
+    assert td[keys.POSITION][0, 2] == pytest.approx(3.0 - 0.5 * 9.81 * t * t, abs=5e-3)
+    assert td[keys.ODOMETRY][0, 8] == pytest.approx(-9.81, abs=0.05)  # vertical acceleration channel
+
+
+def test_motor_lag_reaches_63_percent_after_time_constant():
+    # 400 Hz control: tau_up = 12.5 ms is 5 steps and tau_down = 25 ms is 10 steps exactly.
+    env = QuadrotorEnv(1, control_hz=400, physics_dt=0.00125)
+    td = reset_to(env, air_start(1, z=3.0))
+    td = fly(env, td, torch.full((4,), 600.0), 5)
+    assert td[keys.MOTOR_SPEEDS][0] == pytest.approx(torch.full((4,), 600 * (1 - math.exp(-1))), rel=1e-5)
+    td = fly(env, td, torch.full((4,), 600.0), 200)  # settle
+    td = fly(env, td, torch.full((4,), 200.0), 10)
+    assert td[keys.MOTOR_SPEEDS][0] == pytest.approx(torch.full((4,), 600 - 400 * (1 - math.exp(-1))), rel=1e-4)
+
+
+def test_reset_to_given_start_is_exact():
+    env = QuadrotorEnv(4, seed=0)
+    g = torch.Generator().manual_seed(3)
+    start = torch.rand(4, 12, generator=g) * 2 - 1
+    start[:, 2] += 2.0
+    td = reset_to(env, start)
+    odom = td[keys.ODOMETRY]
+    torch.testing.assert_close(odom[:, 0:3], start[:, 0:3])
+    torch.testing.assert_close(odom[:, 9:12], start[:, 3:6])
+    torch.testing.assert_close(odom[:, 3:6], start[:, 6:9])
+    torch.testing.assert_close(odom[:, 12:15], start[:, 9:12])
+    torch.testing.assert_close(quat_to_euler(td[keys.QUATERNION]), start[:, 3:6])
+    torch.testing.assert_close(odom[:, 6:9], torch.zeros(4, 3))
+
+
+def test_nan_entries_of_a_start_come_from_the_task_distribution():
+    env = QuadrotorEnv(64, seed=0)
+    start = torch.full((64, 12), float("nan"))
+    start[:, 0] = 0.5  # only x is given
+    td = reset_to(env, start)
+    assert (td[keys.POSITION][:, 0] == 0.5).all()
+    assert td[keys.POSITION][:, 1].std() > 0.5  # y drawn from D: uniform in [-2, 2]
+    torch.testing.assert_close(td[keys.POSITION][:, 2], torch.full((64,), env.ground_height))
+
+
+def test_default_reset_is_on_the_ground_level_at_rest():
+    env = QuadrotorEnv(128, seed=1)
+    td = env.reset()
+    pos = td[keys.POSITION]
+    assert pos[:, :2].abs().max() <= 2.0 and pos[:, :2].std() > 0.5
+    torch.testing.assert_close(pos[:, 2], torch.full((128,), env.ground_height))
+    torch.testing.assert_close(td[keys.ODOMETRY][:, 9:11], torch.zeros(128, 2))
+    # resting on the ground before take-off is not a crash
+    td = fly(env, td, torch.zeros(4), 100)
+    assert not td[keys.DONE].any()
+
+
+def test_partial_reset_leaves_other_envs_bit_identical():
+    env = QuadrotorEnv(4, start_motors="hover", seed=0)
+    td = fly(env, reset_to(env, air_start(4)), torch.full((4,), 470.0), 20)
+    before = td.clone()
+    mask = torch.tensor([True, False, True, False]).unsqueeze(-1)
+    after = env.reset(td.clone().set("_reset", mask).set(keys.START_STATE, air_start(4, z=2.5)))
+    for key in (keys.ODOMETRY, keys.POSITION, keys.QUATERNION, keys.MOTOR_SPEEDS, keys.LINEAR_VELOCITY):
+        assert torch.equal(after[key][1], before[key][1]) and torch.equal(after[key][3], before[key][3])
+    assert (after[keys.POSITION][[0, 2], 2] == 2.5).all()
+    # and the untouched envs go on exactly as an env that was never partially reset
+    ref = QuadrotorEnv(4, start_motors="hover", seed=0)
+    ref_td = fly(ref, reset_to(ref, air_start(4)), torch.full((4,), 470.0), 20)
+    a = fly(env, after, torch.full((4,), 470.0), 10)
+    b = fly(ref, ref_td, torch.full((4,), 470.0), 10)
+    assert torch.equal(a[keys.ODOMETRY][[1, 3]], b[keys.ODOMETRY][[1, 3]])
+
+
+def test_acceleration_channels_match_finite_differences():
+    env = QuadrotorEnv(3, seed=0)
+    start = air_start(3, roll=0.3, pitch=-0.2, wx=1.0)
+    td = reset_to(env, start)
+    g = torch.Generator().manual_seed(0)
+    for _ in range(30):
+        prev = td[keys.ODOMETRY].clone()
+        td = fly(env, td, 400 + 100 * torch.rand(4, generator=g), 1)
+        odom = td[keys.ODOMETRY]
+        torch.testing.assert_close(odom[:, 6:9], (odom[:, 3:6] - prev[:, 3:6]) / env.dt, atol=1e-3, rtol=1e-3)
+        torch.testing.assert_close(odom[:, 15:18], (odom[:, 12:15] - prev[:, 12:15]) / env.dt, atol=1e-2, rtol=1e-3)
+
+
+def test_seeding_reproduces_trajectories():
+    def run(seed):
+        env = QuadrotorEnv(8)
+        env.set_seed(seed)
+        torch.manual_seed(seed)
+        return env.rollout(100, break_when_any_done=False)
+
+    a, b, c = run(7), run(7), run(8)
+    assert torch.equal(a["next", keys.ODOMETRY], b["next", keys.ODOMETRY])
+    assert not torch.equal(a[keys.ODOMETRY][:, 0], c[keys.ODOMETRY][:, 0])
+
+
+def test_wrong_action_shape_and_nan_actions_raise():
+    env = QuadrotorEnv(2)
+    td = env.reset()
+    with pytest.raises(ValueError, match=r"action must have shape \(2, 4\)"):
+        env.step(_bad_shape())
+    bad = torch.full((2, 4), 400.0)
+    bad[1, 2] = float("nan")
+    with pytest.raises(ValueError, match=r"NaN or infinite motor speeds for envs \[1\]"):
+        env.step(td.set(keys.ACTION, bad))
+
+
+def _bad_shape():
+    from tensordict import TensorDict
+
+    return TensorDict({keys.ACTION: torch.zeros(2, 3)}, batch_size=[2])
+
+
+def test_tipping_over_on_the_ground_and_leaving_the_box_are_crashes():
+    env = QuadrotorEnv(3)
+    start = torch.zeros(3, 12)
+    start[:, 2] = env.ground_height
+    start[0, 3] = math.radians(80)  # on its side, touching the floor: tipped over
+    start[1, 0] = 5.5  # outside the allowed box
+    start[2, 2] = 0.3
+    start[2, 8] = -4.0  # falling fast towards the floor: hits hard
+    td = reset_to(env, start)
+    done_at = torch.full((3,), -1)
+    for t in range(60):
+        td = fly(env, td, torch.zeros(4), 1)
+        done_at = torch.where((done_at < 0) & td[keys.TERMINATED].squeeze(-1), t, done_at)
+    assert (done_at >= 0).all(), done_at
+    assert done_at[0] == 0 and done_at[1] == 0
+    assert td["reward"].shape == (3, 1)
+
+
+def test_time_limit_truncates():
+    env = QuadrotorEnv(2, episode_seconds=0.1, start_motors="hover")
+    td = reset_to(env, air_start(2))
+    for i in range(env.max_episode_steps):
+        td = fly(env, td, torch.full((4,), env.hover_speed), 1)
+        assert bool(td[keys.TRUNCATED].all()) == (i == env.max_episode_steps - 1)
+    assert not td[keys.TERMINATED].any() and td[keys.DONE].all()
+
+
+def test_nan_physics_terminates_that_env_only():
+    env = QuadrotorEnv(3, start_motors="hover")
+    td = reset_to(env, air_start(3))
+    env._physics_np[1, 5] = float("nan")  # corrupt one env's state, as a blown-up integration would
+    td = fly(env, td, torch.full((4,), env.hover_speed), 1)
+    assert td[keys.TERMINATED].squeeze(-1).tolist() == [False, True, False]
+    assert env.physics_failures == 1
+    assert torch.isfinite(td[keys.ODOMETRY]).all() and torch.isfinite(td["reward"]).all()
+
+
+def test_bad_constructor_values_name_the_key():
+    with pytest.raises(ValueError, match="env.num_envs"):
+        QuadrotorEnv(0)
+    with pytest.raises(ValueError, match="env.control_hz"):
+        QuadrotorEnv(1, control_hz=333)
+    with pytest.raises(ValueError, match="airframe.body_mass"):
+        QuadrotorEnv(1, airframe={"body_mass": -1})
+    with pytest.raises(ValueError, match="allowed keys"):
+        QuadrotorEnv(1, reward={"positon": 1.0})
+
+
+def test_airframe_overrides_reach_the_physics():
+    heavy = QuadrotorEnv(1, airframe={"body_mass": 0.9})
+    assert heavy.hover_speed > QuadrotorEnv(1).hover_speed
+    assert float(heavy.model.body_subtreemass[1]) == pytest.approx(0.9 + 4 * 0.009 + 0.015)
+
+
+def test_rotation_helpers_round_trip():
+    rpy = torch.tensor([[0.3, -0.5, 2.0], [-1.0, 0.2, -3.0]], dtype=torch.float64)
+    torch.testing.assert_close(quat_to_euler(euler_to_quat(rpy)), rpy)
