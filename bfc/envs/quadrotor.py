@@ -43,16 +43,18 @@ def _check(cond: bool, key: str, allowed: str, value) -> None:
 class RewardParams:
     """Shaped reward: closer and more level is better (weights per term; see docs/env.md).
 
-    r = scale * (alive - position |p - g| - tilt (1 - cos tilt) - yaw (1 - cos yaw)
-                 - velocity |v|^2 - angular_velocity |w|^2 - action |a|^2
-                 + precision exp(-|p - g|^2 / precision_radius^2)),
-    a = (command - hover speed) / hover speed; a crash adds -scale * crash_penalty.
+    P = position |p - g| + tilt (1 - cos tilt) + yaw (1 - cos yaw) + velocity |v|^2
+        + angular_velocity |w|^2 + action |a|^2,      a = (command - hover) / hover
+    r = scale * (alive exp(-P / alive) + precision exp(-|p - g|^2 / precision_radius^2))
+    and a crash adds -scale * crash_penalty. The step reward is positive everywhere, so staying
+    alive always beats crashing (with `alive - P` it is negative far from the goal, and PPO
+    learns to crash early to stop paying), and it still grows with every error that shrinks.
     """
 
     alive: float = 1.0
     position: float = 1.0
     tilt: float = 0.5
-    yaw: float = 0.1
+    yaw: float = 0.0  # yaw is free: with 0.1 policies flip over to "turn round" from yaw +-180 (docs)
     velocity: float = 0.05
     angular_velocity: float = 0.005
     action: float = 0.05
@@ -66,6 +68,7 @@ class RewardParams:
             v = getattr(self, f.name)
             _check(isinstance(v, (int, float)) and math.isfinite(v), f"env.reward.{f.name}", "a finite number", v)
         _check(self.precision_radius > 0, "env.reward.precision_radius", "> 0", self.precision_radius)
+        _check(self.alive > 0, "env.reward.alive", "> 0", self.alive)
 
 
 @dataclass
@@ -386,16 +389,15 @@ class QuadrotorEnv(EnvBase):
         cos_tilt = 1 - 2 * (x * x + y * y)  # world-z component of the body z axis
         cos_yaw = np.cos(np.arctan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z)))
         act = (cmd - self.hover_speed) / self.hover_speed
-        r = (
-            rp.alive
-            - rp.position * dist
-            - rp.tilt * (1 - cos_tilt)
-            - rp.yaw * (1 - cos_yaw)
-            - rp.velocity * np.square(phys[:, _LINVEL]).sum(-1)
-            - rp.angular_velocity * np.square(phys[:, _ANGVEL]).sum(-1)
-            - rp.action * np.square(act).sum(-1)
-            + rp.precision * np.exp(-np.square(dist / rp.precision_radius))
+        penalty = (
+            rp.position * dist
+            + rp.tilt * (1 - cos_tilt)
+            + rp.yaw * (1 - cos_yaw)
+            + rp.velocity * np.square(phys[:, _LINVEL]).sum(-1)
+            + rp.angular_velocity * np.square(phys[:, _ANGVEL]).sum(-1)
+            + rp.action * np.square(act).sum(-1)
         )
+        r = rp.alive * np.exp(-penalty / rp.alive) + rp.precision * np.exp(-np.square(dist / rp.precision_radius))
         # Lowest point of the collision box: is the drone touching the floor?
         hx, hy, hz = HULL_HALF_SIZE
         lowest = pos[:, 2] - (

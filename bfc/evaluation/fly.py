@@ -1,0 +1,170 @@
+"""Fly controllers from given starts in the batched env, never resetting mid-flight.
+
+A crash (terminated) ends that flight as a failure: the physics goes on, but `alive` stays False.
+"""
+
+from __future__ import annotations
+
+import torch
+from omegaconf import OmegaConf
+from tensordict import TensorDict
+from tensordict.nn import TensorDictModuleBase
+from torchrl.envs import TransformedEnv
+from torchrl.envs.utils import ExplorationType, set_exploration_type, step_mdp
+
+from bfc import keys
+from bfc.transforms import GivenStarts
+
+
+def _given_starts(env: TransformedEnv) -> GivenStarts:
+    for t in env.transform:
+        if isinstance(t, GivenStarts):
+            return t
+    raise ValueError("the env has no GivenStarts transform: build it with make_env(..., given_starts=True)")
+
+
+@torch.no_grad()
+def run_flights(env: TransformedEnv, policy, starts: torch.Tensor, steps: int, goal_schedule=None) -> TensorDict:
+    """Fly `policy` (deterministic) from `starts` (n, 12) for `steps` env steps.
+
+    goal_schedule: optional list of (step, goal (3,)) switching the goal in flight.
+    Returns a TensorDict of shape (n, steps) with the ground truth, what the controller saw
+    (`"odometry"`), the controller's `"action"`, `"goal"`, `"alive"` and `"time"` (s).
+    """
+    base = env.base_env
+    _given_starts(env).set_starts(starts.float())
+    schedule = dict((int(s), g) for s, g in (goal_schedule or []))
+    if 0 in schedule:
+        base.set_goal(schedule[0])
+    td = env.reset()
+    n = base.num_envs
+    alive = torch.ones(n, dtype=torch.bool)
+    rows = []
+    with set_exploration_type(ExplorationType.DETERMINISTIC):
+        for t in range(steps):
+            if t in schedule and t > 0:
+                base.set_goal(schedule[t])
+                td.set(keys.GOAL, base._goal.clone())
+            td = policy(td)
+            td = env.step(td)
+            nxt = td["next"]
+            alive &= ~nxt.get(keys.TERMINATED).reshape(n)
+            rows.append(
+                TensorDict(
+                    {
+                        keys.STATE: nxt.get(keys.STATE).clone(),
+                        keys.ODOMETRY: nxt.get(keys.ODOMETRY).clone(),
+                        keys.GOAL: nxt.get(keys.GOAL).clone(),
+                        keys.ACTION: td.get(keys.ACTION).clone(),
+                        "alive": alive.clone(),
+                        "time": torch.full((n,), (t + 1) * base.dt),
+                    },
+                    batch_size=[n],
+                )
+            )
+            td = step_mdp(td)
+    return torch.stack(rows, 1)
+
+
+def config_for(env_settings: dict | None = None, **sections):
+    """A full config (defaults) with the given `env` settings and sections merged in."""
+    from bfc.config import Config
+
+    cfg = OmegaConf.structured(Config)
+    if env_settings:
+        cfg.env = OmegaConf.merge(cfg.env, env_settings)
+    for name, value in sections.items():
+        cfg[name] = OmegaConf.merge(cfg[name], value)
+    return cfg
+
+
+def is_module(controller) -> bool:
+    return isinstance(controller, (TensorDictModuleBase, torch.nn.Module))
+
+
+CONTROLLERS: dict = {}  # name -> factory(env) returning a TensorDictModule (classical baselines)
+
+
+def _goal_schedule(goal, dt: float):
+    """`goal` as (3,) or as [(time_s, (x, y, z)), ...]: -> (first goal, [(step, goal), ...])."""
+    g = list(goal)
+    if len(g) == 3 and all(isinstance(v, (int, float)) for v in g):
+        return torch.tensor(g, dtype=torch.float32), None
+    try:
+        sched = [(round(float(t) / dt), torch.tensor([float(v) for v in xyz])) for t, xyz in g]
+    except (TypeError, ValueError):
+        raise ValueError("goal must be (x, y, z) or a list of (time_seconds, (x, y, z)) waypoints") from None
+    if not sched or sched[0][0] != 0 or any(w.shape != (3,) for _, w in sched):
+        raise ValueError("a waypoint schedule must start at time 0 and give (x, y, z) for each waypoint")
+    return sched[0][1], sched
+
+
+def fly(controller, starts, goal=(0.0, 0.0, 1.5), seconds: float = 10.0, noise=None, seed: int = 0) -> TensorDict:
+    """Fly all `starts` (n, 12) at once for `seconds`, never resetting mid-flight.
+
+    controller: a policy.pt path (flown at the control rate it was trained at), a controller
+    name registered in `CONTROLLERS`, or a TensorDictModule reading `"odometry"`/`"goal"` and
+    writing `"action"` in rad/s. noise: a `noise` config section, e.g.
+    {"kind": "ou", "std": 0.05, "elements": "position"}; it corrupts only what the controller sees.
+    Returns a TensorDict (n, T); see `run_flights`.
+    """
+    from bfc.make_env import make_env, seed_env
+    from bfc.policy import load_policy
+
+    starts = torch.as_tensor(starts, dtype=torch.float32)
+    if starts.ndim != 2 or starts.shape[1] != 12:
+        raise ValueError(f"starts must have shape (n, 12), got {tuple(starts.shape)}")
+    if seconds <= 0:
+        raise ValueError(f"seconds must be > 0, got {seconds}")
+    if isinstance(controller, (str, bytes)) and str(controller) in CONTROLLERS:
+        name, settings, policy_io = str(controller), None, False
+    elif is_module(controller):
+        name, settings, policy_io = None, None, False
+    elif isinstance(controller, (str, bytes)) or hasattr(controller, "__fspath__"):
+        name = None
+        controller, payload = load_policy(controller)
+        settings, policy_io = payload["env"], True
+    else:
+        raise ValueError(
+            f"controller must be a policy.pt path, one of {sorted(CONTROLLERS)} or a TensorDictModule, got {controller!r}"
+        )
+    cfg = config_for(settings, noise=noise or {"kind": "none"})
+    cfg.env.episode_seconds = seconds + 1.0
+    n = starts.shape[0]
+    env = make_env(cfg, num_envs=n, samplers=False, given_starts=True, policy_io=policy_io)
+    seed_env(env, seed)
+    if name is not None:
+        controller = CONTROLLERS[name](env)
+    first, schedule = _goal_schedule(goal, env.base_env.dt)
+    env.base_env.set_goal(first)
+    try:
+        return run_flights(env, controller, starts, round(seconds / env.base_env.dt), goal_schedule=schedule)
+    finally:
+        env.close()
+
+
+def success(trajectory: TensorDict, goal=None, threshold: float = 0.10, hold_seconds: float = 1.0) -> torch.Tensor:
+    """(n,) bool: inside goal +/- threshold on every axis for hold_seconds of consecutive steps,
+    at any time of the flight, before any crash. goal None: the trajectory's own (scheduled) goal."""
+    from bfc.evaluation.protocol import success_and_time
+
+    return success_and_time(*_inside_and_hold(trajectory, goal, threshold, hold_seconds))[0]
+
+
+def time_to_success(trajectory: TensorDict, goal=None, threshold: float = 0.10, hold_seconds: float = 1.0):
+    """(n,) seconds from the start until the drone entered the box for the hold that succeeded (NaN: never)."""
+    from bfc.evaluation.protocol import success_and_time
+
+    return success_and_time(*_inside_and_hold(trajectory, goal, threshold, hold_seconds))[1]
+
+
+def _inside_and_hold(trajectory, goal, threshold, hold_seconds):
+    from bfc.evaluation.protocol import inside_box
+
+    time = trajectory.get("time")
+    dt = float(time[0, 1] - time[0, 0]) if time.shape[1] > 1 else float(time[0, 0])
+    pos = trajectory.get(keys.POSITION)
+    goal = trajectory.get(keys.GOAL) if goal is None else torch.as_tensor(goal, dtype=pos.dtype)
+    alive = trajectory.get("alive", torch.ones(pos.shape[:2], dtype=torch.bool))
+    inside = inside_box(pos, goal, threshold) & alive
+    return inside, max(1, round(hold_seconds / dt)), dt

@@ -1,0 +1,59 @@
+"""Per-flight outcomes and error statistics of a batch of flights (the protocol's report)."""
+
+from __future__ import annotations
+
+import torch
+from tensordict import TensorDict
+
+from bfc import keys
+from bfc.evaluation.fly import _inside_and_hold
+from bfc.evaluation.protocol import success_and_time
+
+
+def tilt_degrees(quaternion: torch.Tensor) -> torch.Tensor:
+    """Angle between the body z axis and the world z axis (deg)."""
+    x, y = quaternion[..., 1], quaternion[..., 2]
+    return torch.rad2deg(torch.acos((1 - 2 * (x * x + y * y)).clamp(-1.0, 1.0)))
+
+
+def attitude_error_degrees(quaternion: torch.Tensor) -> torch.Tensor:
+    """Rotation angle between the body attitude and level with yaw 0 (deg)."""
+    return torch.rad2deg(2 * torch.acos(quaternion[..., 0].abs().clamp(max=1.0)))
+
+
+def summarize(trajectory: TensorDict, threshold: float = 0.10, hold_seconds: float = 1.0) -> dict:
+    """Success count and rate, per-start outcome and time to success, and the mean and 95th
+    percentile of position and attitude error over the flight after success."""
+    inside, hold, dt = _inside_and_hold(trajectory, None, threshold, hold_seconds)
+    ok, t_success = success_and_time(inside, hold, dt)
+    pos_err = (trajectory.get(keys.POSITION) - trajectory.get(keys.GOAL)).norm(dim=-1)
+    att_err = attitude_error_degrees(trajectory.get(keys.QUATERNION))
+    time = trajectory.get("time")
+    after = ok.unsqueeze(-1) & (time >= torch.nan_to_num(t_success, nan=1e9).unsqueeze(-1))
+    crashed = ~trajectory.get("alive")[:, -1]
+
+    def stats(err):
+        vals = err[after]
+        if vals.numel() == 0:
+            return {"mean": None, "p95": None}
+        return {"mean": vals.mean().item(), "p95": vals.quantile(0.95).item() if vals.numel() < 2**24 else None}
+
+    n = int(ok.numel())
+    return {
+        "starts": n,
+        "success": int(ok.sum()),
+        "fail": n - int(ok.sum()),
+        "success_rate": ok.float().mean().item(),
+        "crashes": int(crashed.sum()),
+        "time_to_success_median": t_success[ok].median().item() if bool(ok.any()) else None,
+        "position_error_after_success_m": stats(pos_err),
+        "attitude_error_after_success_deg": stats(att_err),
+        "per_start": [
+            {
+                "success": bool(ok[i]),
+                "time_to_success": None if not ok[i] else round(float(t_success[i]), 3),
+                "crashed": bool(crashed[i]),
+            }
+            for i in range(n)
+        ],
+    }

@@ -1,0 +1,112 @@
+"""Actor and critic networks, and the deployable policy file (`policy.pt`).
+
+A policy file is data, never code: a dict of tensors, numbers and strings that loads with
+`torch.load(path, weights_only=True)`. It records the network shape and the env settings the
+policy was trained with (control rate, airframe, observation), so it is always flown as trained.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import torch
+from tensordict.nn import TensorDictModule
+from torch import nn
+from torchrl.modules import MLP, IndependentNormal, ProbabilisticActor, ValueOperator
+
+from bfc import keys
+
+POLICY_FORMAT = "bfc-policy-v1"
+ACTIVATIONS = {"tanh": nn.Tanh, "relu": nn.ReLU, "elu": nn.ELU}
+
+
+class GaussianHead(nn.Module):
+    """obs -> (loc, scale): an MLP mean and a learned, state-independent std per motor.
+
+    The last layer starts near zero, so the untrained policy commands about hover (action 0);
+    the std starts at `init_std` (small: big motor noise makes take-off a lottery).
+    """
+
+    def __init__(self, obs_size: int, hidden: list[int], activation: str = "tanh", init_std: float = 0.2):
+        super().__init__()
+        self.mean = MLP(
+            in_features=obs_size, out_features=4, num_cells=list(hidden), activation_class=ACTIVATIONS[activation]
+        )
+        last = self.mean[-1]
+        with torch.no_grad():
+            last.weight.mul_(0.01)
+            last.bias.zero_()
+        self.log_std = nn.Parameter(torch.full((4,), math.log(init_std)))
+
+    def forward(self, obs: torch.Tensor):
+        loc = self.mean(obs)
+        return loc, self.log_std.exp().expand_as(loc)
+
+
+def make_actor(obs_size: int, hidden, activation="tanh", init_std=0.2, action_spec=None) -> ProbabilisticActor:
+    head = TensorDictModule(
+        GaussianHead(obs_size, list(hidden), activation, init_std),
+        in_keys=[keys.OBSERVATION],
+        out_keys=["loc", "scale"],
+    )
+    return ProbabilisticActor(
+        head,
+        in_keys=["loc", "scale"],
+        out_keys=[keys.ACTION],
+        spec=action_spec,
+        distribution_class=IndependentNormal,
+        return_log_prob=True,
+        default_interaction_type="random",
+    )
+
+
+def make_critic(obs_size: int, hidden, activation="tanh") -> ValueOperator:
+    net = MLP(in_features=obs_size, out_features=1, num_cells=list(hidden), activation_class=ACTIVATIONS[activation])
+    return ValueOperator(net, in_keys=[keys.OBSERVATION])
+
+
+def save_policy(path, actor: ProbabilisticActor, *, model: dict, env: dict, observation: dict, info: dict) -> None:
+    """Write a policy file atomically (write to a temporary name, then rename)."""
+    head = actor.module[0].module
+    payload = {
+        "format": POLICY_FORMAT,
+        "state_dict": {k: v.detach().clone() for k, v in head.state_dict().items()},
+        "model": model,
+        "env": env,
+        "observation": observation,
+        "info": info,
+    }
+    atomic_save(payload, path)
+
+
+def atomic_save(obj, path) -> None:
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(path.name + ".tmp")
+    torch.save(obj, tmp)
+    tmp.replace(path)
+
+
+def read_policy_file(path) -> dict:
+    """Load and check a policy file (data only); clear errors for missing or foreign files."""
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"no policy file at {path}: pass the path of a policy.pt written by train.py")
+    try:
+        payload = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as err:  # noqa: BLE001 - any unpickling failure means "not a policy file"
+        raise ValueError(f"{path} is not a loadable bfc policy file (weights_only load failed: {err})") from None
+    if not isinstance(payload, dict) or payload.get("format") != POLICY_FORMAT:
+        raise ValueError(f"{path} is not a bfc policy file (expected format {POLICY_FORMAT!r})")
+    return payload
+
+
+def load_policy(path) -> tuple[ProbabilisticActor, dict]:
+    """(actor, payload): the actor in eval mode with the file's weights, and the file's settings."""
+    payload = read_policy_file(path)
+    m = payload["model"]
+    actor = make_actor(payload["observation"]["size"], m["actor_hidden"], m["activation"], m["init_std"])
+    actor.module[0].module.load_state_dict(payload["state_dict"])
+    actor.eval()
+    return actor, payload

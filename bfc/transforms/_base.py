@@ -1,0 +1,72 @@
+"""What every bfc transform shares: the reset mask, a seedable generator, argument checks."""
+
+from __future__ import annotations
+
+import torch
+from tensordict import TensorDict, TensorDictBase
+from torchrl.envs import Transform
+
+from bfc import keys
+
+
+def check(cond: bool, key: str, allowed: str, value) -> None:
+    """Raise a ValueError that names the config key and what is allowed."""
+    if not cond:
+        raise ValueError(f"{key} must be {allowed}, got {value!r}")
+
+
+def reset_mask(tensordict: TensorDictBase | None, n: int) -> torch.Tensor:
+    """(n,) bool: the envs this reset concerns (all of them without a `"_reset"` entry)."""
+    if tensordict is None or keys.RESET not in tensordict.keys():
+        return torch.ones(n, dtype=torch.bool)
+    return tensordict.get(keys.RESET).reshape(n)
+
+
+class BatchedTransform(Transform):
+    """A transform over an env with batch_size (num_envs,), holding per-env state as buffers.
+
+    Buffers go into `state_dict`, so whatever must survive checkpoint/resume is a buffer.
+    Random draws come from the transform's own generator, seeded by `set_seed` (make_env seeds
+    every transform from the run's seed, next to the env).
+    """
+
+    def __init__(self, num_envs: int, in_keys=None, out_keys=None):
+        super().__init__(in_keys=in_keys or [], out_keys=out_keys or [])
+        check(isinstance(num_envs, int) and num_envs >= 1, "num_envs", "an integer >= 1", num_envs)
+        self.num_envs = num_envs
+        self.generator = torch.Generator()
+        self.generator.manual_seed(0)
+
+    def set_seed(self, seed: int) -> None:
+        self.generator.manual_seed(int(seed))
+
+    def rand(self, *shape: int) -> torch.Tensor:
+        return torch.rand(*shape, generator=self.generator)
+
+    def randn(self, *shape: int) -> torch.Tensor:
+        return torch.randn(*shape, generator=self.generator)
+
+
+class StartSampler(BatchedTransform):
+    """A transform that fills part of `"start_state"` before the env resets.
+
+    Entries left NaN are drawn by the env from the task distribution D, so samplers compose
+    without knowing about each other (CSS writes x, y; JD height, attitude and velocities).
+    """
+
+    def _reset_env_preprocess(self, tensordict: TensorDictBase | None) -> TensorDictBase:
+        n = self.num_envs
+        if tensordict is None:
+            tensordict = TensorDict({}, batch_size=[n])
+        start = tensordict.get(keys.START_STATE, None)
+        if start is None:
+            start = torch.full((n, 12), float("nan"))
+        else:
+            start = start.clone()
+        self.fill_starts(start, reset_mask(tensordict, n))
+        tensordict.set(keys.START_STATE, start)
+        return tensordict
+
+    def fill_starts(self, start: torch.Tensor, mask: torch.Tensor) -> None:
+        """Write this sampler's entries of `start` (n, 12) for the envs in `mask`, in place."""
+        raise NotImplementedError

@@ -1,0 +1,97 @@
+"""Jumping Distribution (JD, paper sec. 4.1): start in the air with probability p(t), else on the ground.
+
+p(t) starts at p0 and decays with the number of env steps collected (all envs counted) to exactly
+0 at `decay_frames`. The counter is a buffer, so it survives checkpoint/resume.
+"""
+
+from __future__ import annotations
+
+import math
+
+import torch
+from tensordict import TensorDictBase
+
+from bfc.transforms._base import StartSampler, check
+
+SCHEDULES = ("linear", "cosine", "constant")
+
+
+def _range(value, key: str) -> tuple[float, float]:
+    lo, hi = (float(v) for v in value)
+    check(math.isfinite(lo) and math.isfinite(hi) and lo <= hi, key, "a pair [low, high] with low <= high", value)
+    return lo, hi
+
+
+class JumpingDistribution(StartSampler):
+    """Per reset env: with probability p(t) a JD start (z, attitude and optional velocities drawn
+    from the configured ranges), else the task's ground start (left NaN for the env to draw from D).
+    Ranges are in metres, degrees, m/s and deg/s.
+    """
+
+    def __init__(
+        self,
+        num_envs: int,
+        p0: float = 1.0,
+        decay_frames: int = 20_000_000,
+        schedule: str = "linear",
+        z_range=(0.5, 3.0),
+        roll_range=(-60.0, 60.0),
+        pitch_range=(-60.0, 60.0),
+        yaw_range=(-180.0, 180.0),
+        velocity_range=(0.0, 0.0),
+        angular_velocity_range=(0.0, 0.0),
+    ):
+        super().__init__(num_envs)
+        check(0.0 <= p0 <= 1.0, "jd.p0", "in [0, 1]", p0)
+        check(isinstance(decay_frames, int) and decay_frames >= 0, "jd.decay_frames", "an integer >= 0", decay_frames)
+        check(schedule in SCHEDULES, "jd.schedule", f"one of {SCHEDULES}", schedule)
+        self.p0, self.decay_frames, self.schedule = float(p0), int(decay_frames), schedule
+        lows, highs = [], []
+        for name, value, scale in (
+            ("z_range", z_range, 1.0),
+            ("roll_range", roll_range, math.pi / 180),
+            ("pitch_range", pitch_range, math.pi / 180),
+            ("yaw_range", yaw_range, math.pi / 180),
+        ):
+            lo, hi = _range(value, f"jd.{name}")
+            lows.append(lo * scale)
+            highs.append(hi * scale)
+        check(lows[0] > 0, "jd.z_range", "above the ground (low > 0)", z_range)
+        vlo, vhi = _range(velocity_range, "jd.velocity_range")
+        wlo, whi = _range(angular_velocity_range, "jd.angular_velocity_range")
+        lows += [vlo] * 3 + [math.radians(wlo)] * 3
+        highs += [vhi] * 3 + [math.radians(whi)] * 3
+        self.register_buffer("low", torch.tensor(lows))
+        self.register_buffer("high", torch.tensor(highs))
+        self.register_buffer("frames", torch.zeros((), dtype=torch.long))
+        self.register_buffer("air_starts", torch.zeros((), dtype=torch.long))
+        self.register_buffer("resets", torch.zeros((), dtype=torch.long))
+
+    @property
+    def probability(self) -> float:
+        """p(t) at the current frame count."""
+        return self.probability_at(int(self.frames))
+
+    def probability_at(self, frames: int) -> float:
+        if self.schedule == "constant":
+            return self.p0
+        if self.decay_frames == 0 or frames >= self.decay_frames:
+            return 0.0
+        progress = frames / self.decay_frames
+        if self.schedule == "linear":
+            return self.p0 * (1.0 - progress)
+        return self.p0 * 0.5 * (1.0 + math.cos(math.pi * progress))
+
+    def fill_starts(self, start: torch.Tensor, mask: torch.Tensor) -> None:
+        air = mask & (self.rand(self.num_envs) < self.probability)
+        drawn = self.low + (self.high - self.low) * self.rand(self.num_envs, 10)  # z, rpy, v, w
+        start[:, 2:12] = torch.where(air.unsqueeze(-1), drawn, start[:, 2:12])
+        self.air_starts += int(air.sum())
+        self.resets += int(mask.sum())
+
+    def _step(self, tensordict: TensorDictBase, next_tensordict: TensorDictBase) -> TensorDictBase:
+        self.frames += self.num_envs
+        return next_tensordict
+
+    def _reset(self, tensordict: TensorDictBase, tensordict_reset: TensorDictBase) -> TensorDictBase:
+        return tensordict_reset

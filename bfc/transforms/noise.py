@@ -1,0 +1,99 @@
+"""Odometry noise: Gaussian and Ornstein-Uhlenbeck, on chosen elements of `"odometry"` only.
+
+Ground truth under `"state"` is never touched. Noise is applied on reset as well as on step.
+"""
+
+from __future__ import annotations
+
+import math
+
+import torch
+from tensordict import TensorDictBase
+
+from bfc import keys
+from bfc.transforms._base import BatchedTransform, check, reset_mask
+
+ODOMETRY_SIZE = 18
+ELEMENT_SETS = {"all": list(range(18)), "position": [0, 1, 2]}
+
+
+def element_mask(elements) -> torch.Tensor:
+    """(18,) bool mask from `all`, `position` or an explicit list of odometry indices."""
+    if isinstance(elements, str):
+        check(
+            elements in ELEMENT_SETS, "noise.elements", f"one of {sorted(ELEMENT_SETS)} or a list of indices", elements
+        )
+        idx = ELEMENT_SETS[elements]
+    else:
+        idx = list(elements)
+        check(
+            len(idx) > 0 and all(isinstance(i, int) and 0 <= i < ODOMETRY_SIZE for i in idx),
+            "noise.elements",
+            "'all', 'position' or a non-empty list of integers in [0, 17]",
+            elements,
+        )
+    mask = torch.zeros(ODOMETRY_SIZE, dtype=torch.bool)
+    mask[idx] = True
+    return mask
+
+
+def _std_vector(std) -> torch.Tensor:
+    std_t = torch.as_tensor(std, dtype=torch.float32)
+    check(
+        std_t.ndim == 0 or std_t.shape == (ODOMETRY_SIZE,),
+        "noise.std",
+        "a number or a list of 18 numbers (one per odometry element)",
+        std,
+    )
+    check(bool(torch.isfinite(std_t).all() and (std_t >= 0).all()), "noise.std", "finite and >= 0", std)
+    return std_t.expand(ODOMETRY_SIZE).clone()
+
+
+class _OdometryNoise(BatchedTransform):
+    def __init__(self, num_envs: int, std, elements="all"):
+        super().__init__(num_envs, in_keys=[keys.ODOMETRY], out_keys=[keys.ODOMETRY])
+        self.register_buffer("std", _std_vector(std) * element_mask(elements))
+
+    def noise(self, mask: torch.Tensor | None) -> torch.Tensor:
+        raise NotImplementedError
+
+    def _corrupt(self, td: TensorDictBase, noise: torch.Tensor) -> TensorDictBase:
+        td.set(keys.ODOMETRY, td.get(keys.ODOMETRY) + noise)
+        return td
+
+    def _step(self, tensordict: TensorDictBase, next_tensordict: TensorDictBase) -> TensorDictBase:
+        return self._corrupt(next_tensordict, self.noise(None))
+
+    def _reset(self, tensordict: TensorDictBase, tensordict_reset: TensorDictBase) -> TensorDictBase:
+        return self._corrupt(tensordict_reset, self.noise(reset_mask(tensordict, self.num_envs)))
+
+
+class GaussianOdometryNoise(_OdometryNoise):
+    """Adds N(0, std^2) independently per element and step (std a number or 18 numbers)."""
+
+    def noise(self, mask):
+        return self.randn(self.num_envs, ODOMETRY_SIZE) * self.std
+
+
+class OUOdometryNoise(_OdometryNoise):
+    """Ornstein-Uhlenbeck noise, dx = -theta x dt + sigma dW, discretised exactly at the env step.
+
+    `std` is the stationary standard deviation (sigma = std sqrt(2 theta)), so Gaussian and OU
+    noise at the same std compare. Each env's process restarts from 0 at its reset.
+    """
+
+    def __init__(self, num_envs: int, std, theta: float = 1.0, dt: float = 0.004, elements="all"):
+        check(math.isfinite(theta) and theta > 0, "noise.theta", "> 0", theta)
+        check(dt > 0, "noise.dt", "> 0", dt)
+        super().__init__(num_envs, std, elements)
+        self.theta, self.dt = float(theta), float(dt)
+        self.decay = math.exp(-theta * dt)
+        self.innovation = math.sqrt(1 - self.decay**2)  # keeps the stationary std at `std`
+        self.register_buffer("x", torch.zeros(num_envs, ODOMETRY_SIZE))
+
+    def noise(self, mask):
+        if mask is not None:  # reset: restart the process of these envs
+            self.x[mask] = 0.0
+        else:
+            self.x.mul_(self.decay).add_(self.randn(self.num_envs, ODOMETRY_SIZE) * self.std * self.innovation)
+        return self.x.clone()

@@ -1,0 +1,73 @@
+"""The policy's input, built from what sensors report (`"odometry"`) and the goal.
+
+Goal-relative position (so one policy flies to any goal and follows waypoints), the attitude as
+a rotation matrix (continuous, unlike Euler angles), velocities, and the previous motor command.
+The scales bring each part to order 1; they are fixed, so a policy file needs no running
+statistics. Accelerations (finite differences, noisy) are left out by default.
+"""
+
+from __future__ import annotations
+
+import torch
+from tensordict import TensorDictBase
+from torchrl.data import Composite, Unbounded
+
+from bfc import keys
+from bfc.envs.rotations import euler_to_quat, quat_to_matrix
+from bfc.transforms._base import BatchedTransform, check, reset_mask
+
+
+class PolicyObservation(BatchedTransform):
+    def __init__(
+        self,
+        num_envs: int,
+        hover_speed: float,
+        position_clip: float = 3.0,
+        velocity_scale: float = 0.5,
+        angular_velocity_scale: float = 0.1,
+        include_acceleration: bool = False,
+        acceleration_scale: float = 0.05,
+    ):
+        super().__init__(num_envs, in_keys=[keys.ODOMETRY, keys.GOAL], out_keys=[keys.OBSERVATION])
+        check(hover_speed > 0, "hover_speed", "> 0", hover_speed)
+        check(position_clip > 0, "model.position_clip", "> 0", position_clip)
+        self.hover_speed = float(hover_speed)
+        self.position_clip = float(position_clip)
+        self.velocity_scale = float(velocity_scale)
+        self.angular_velocity_scale = float(angular_velocity_scale)
+        self.include_acceleration = bool(include_acceleration)
+        self.acceleration_scale = float(acceleration_scale)
+        self.size = 22 + (6 if include_acceleration else 0)
+        self.register_buffer("last_action", torch.zeros(num_envs, 4))
+
+    def build(self, odometry: torch.Tensor, goal: torch.Tensor, last_action: torch.Tensor) -> torch.Tensor:
+        rel = (odometry[..., 0:3] - goal).clamp(-self.position_clip, self.position_clip)
+        rot = quat_to_matrix(euler_to_quat(odometry[..., 9:12])).flatten(-2)
+        parts = [
+            rel,
+            rot,
+            odometry[..., 3:6] * self.velocity_scale,
+            odometry[..., 12:15] * self.angular_velocity_scale,
+            last_action,
+        ]
+        if self.include_acceleration:
+            parts += [odometry[..., 6:9] * self.acceleration_scale, odometry[..., 15:18] * self.acceleration_scale]
+        return torch.cat(parts, -1)
+
+    def _call(self, td: TensorDictBase) -> TensorDictBase:
+        td.set(keys.OBSERVATION, self.build(td.get(keys.ODOMETRY), td.get(keys.GOAL), self.last_action.clone()))
+        return td
+
+    def _step(self, tensordict: TensorDictBase, next_tensordict: TensorDictBase) -> TensorDictBase:
+        # The action here is the motor command in rad/s (inverse transforms already ran).
+        command = tensordict.get(keys.ACTION)
+        self.last_action.copy_(((command - self.hover_speed) / self.hover_speed).clamp(-1, 1))
+        return self._call(next_tensordict)
+
+    def _reset(self, tensordict: TensorDictBase, tensordict_reset: TensorDictBase) -> TensorDictBase:
+        self.last_action.masked_fill_(reset_mask(tensordict, self.num_envs).unsqueeze(-1), 0.0)
+        return self._call(tensordict_reset)
+
+    def transform_observation_spec(self, observation_spec: Composite) -> Composite:
+        observation_spec[keys.OBSERVATION] = Unbounded(shape=(self.num_envs, self.size), dtype=torch.float32)
+        return observation_spec

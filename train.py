@@ -1,0 +1,47 @@
+"""Train BFC (PPO + JD/CSS/TDTS) on the MuJoCo Hummingbird.
+
+python train.py                                  # the full BFC (JD-CSS-TDTS), defaults known to learn
+python train.py +ablation=jd_tdts seed=1         # one ablation variant
+python train.py -m +ablation=ppo,jd,jd_css_tdts seed=0,1,2   # a sweep
+python train.py resume=outputs/2026-11-22/10-00-00           # continue a killed run
+"""
+
+import sys
+from pathlib import Path
+
+import hydra
+from hydra.core.hydra_config import HydraConfig
+from omegaconf import OmegaConf
+
+from bfc.config import register, validate
+from bfc.training import train
+
+register()
+
+
+@hydra.main(config_path="conf", config_name="config", version_base="1.3")
+def main(cfg) -> float:
+    try:
+        if cfg.resume:
+            run_dir = Path(cfg.resume)
+            if not (run_dir / "checkpoints" / "last.pt").is_file():
+                raise FileNotFoundError(f"resume={cfg.resume}: no checkpoints/last.pt there to resume from")
+            # The run goes on with the config it started with.
+            cfg = OmegaConf.merge(cfg, OmegaConf.load(run_dir / "config.yaml"), {"resume": str(run_dir)})
+        else:
+            run_dir = Path(HydraConfig.get().runtime.output_dir)
+        validate(cfg)
+        summary = train(cfg, run_dir)
+    except (ValueError, FileNotFoundError) as err:
+        print(f"error: {err}", file=sys.stderr)
+        sys.exit(2)
+    print(f"run directory: {run_dir}")
+    print(
+        f"frames {summary['frames']}, wall-clock {summary['wall_seconds']} s, "
+        f"final success {summary['final_success_rate']}, best {summary['best_success_rate']}"
+    )
+    return float(summary["final_success_rate"] or 0.0)
+
+
+if __name__ == "__main__":
+    main()
