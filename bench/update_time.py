@@ -29,9 +29,8 @@ def main() -> None:
     env = make_env(cfg, seed=0)
     obs = find_transform(env, PolicyObservation)
     steps = cfg.collector.frames_per_batch // cfg.env.num_envs
-    print(
-        f"# batch {cfg.collector.frames_per_batch} frames, {cfg.loss.epochs} epochs, minibatch {cfg.loss.minibatch_size}"
-    )
+    c, lo = cfg.collector, cfg.loss
+    print(f"# batch {c.frames_per_batch} frames, {lo.epochs} epochs, minibatch {lo.minibatch_size}")
     print("| actor x2 | critic x2 | activation | torch threads | update (s) |")
     print("|---|---|---|---|---|")
     for size, act in [(s, a) for s in args.sizes for a in args.activations]:

@@ -99,12 +99,18 @@ def _goal_schedule(goal, dt: float):
     return sched[0][1], sched
 
 
-def fly(controller, starts, goal=(0.0, 0.0, 1.5), seconds: float = 10.0, noise=None, seed: int = 0) -> TensorDict:
+PROTOCOL_HZ = 250.0  # the paper's control rate, for controllers that do not record their own
+
+
+def fly(
+    controller, starts, goal=(0.0, 0.0, 1.5), seconds: float = 10.0, noise=None, seed: int = 0, control_hz=None
+) -> TensorDict:
     """Fly all `starts` (n, 12) at once for `seconds`, never resetting mid-flight.
 
-    controller: a policy.pt path (flown at the control rate it was trained at), a controller
-    name registered in `CONTROLLERS`, or a TensorDictModule reading `"odometry"`/`"goal"` and
-    writing `"action"` in rad/s. noise: a `noise` config section, e.g.
+    controller: a policy.pt path (always flown at the control rate it was trained at), a
+    controller name registered in `CONTROLLERS`, or a TensorDictModule reading `"odometry"`/`"goal"`
+    and writing `"action"` in rad/s (flown at `control_hz`, default 250 Hz as in the paper).
+    goal: (x, y, z) or waypoints [(time_s, (x, y, z)), ...]. noise: a `noise` config section, e.g.
     {"kind": "ou", "std": 0.05, "elements": "position"}; it corrupts only what the controller sees.
     Returns a TensorDict (n, T); see `run_flights`.
     """
@@ -125,10 +131,13 @@ def fly(controller, starts, goal=(0.0, 0.0, 1.5), seconds: float = 10.0, noise=N
         controller, payload = load_policy(controller)
         settings, policy_io = payload["env"], True
     else:
-        raise ValueError(
-            f"controller must be a policy.pt path, one of {sorted(CONTROLLERS)} or a TensorDictModule, got {controller!r}"
-        )
+        allowed = f"a policy.pt path, one of {sorted(CONTROLLERS)} or a TensorDictModule"
+        raise ValueError(f"controller must be {allowed}, got {controller!r}")
     cfg = config_for(settings, noise=noise or {"kind": "none"})
+    if settings is None:
+        cfg.env.control_hz = float(control_hz or PROTOCOL_HZ)
+    elif control_hz is not None and float(control_hz) != float(settings["control_hz"]):
+        raise ValueError(f"this policy was trained at {settings['control_hz']} Hz and is flown at that rate only")
     cfg.env.episode_seconds = seconds + 1.0
     n = starts.shape[0]
     env = make_env(cfg, num_envs=n, samplers=False, given_starts=True, policy_io=policy_io)

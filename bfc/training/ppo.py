@@ -40,26 +40,13 @@ def make_models(cfg, obs_size: int, action_spec=None):
 
 def make_loss(cfg, actor, critic):
     lo = cfg.loss
+    common = dict(
+        entropy_coeff=lo.entropy_coeff, critic_coeff=lo.critic_coeff, loss_critic_type="l2", normalize_advantage=True
+    )
     if lo.kind == "clip":
-        loss = ClipPPOLoss(
-            actor,
-            critic,
-            clip_epsilon=lo.clip_epsilon,
-            entropy_coeff=lo.entropy_coeff,
-            critic_coeff=lo.critic_coeff,
-            loss_critic_type="l2",
-            normalize_advantage=True,
-        )
+        loss = ClipPPOLoss(actor, critic, clip_epsilon=lo.clip_epsilon, **common)
     else:
-        loss = KLPENPPOLoss(
-            actor,
-            critic,
-            dtarg=lo.dtarg,
-            entropy_coeff=lo.entropy_coeff,
-            critic_coeff=lo.critic_coeff,
-            loss_critic_type="l2",
-            normalize_advantage=True,
-        )
+        loss = KLPENPPOLoss(actor, critic, dtarg=lo.dtarg, **common)
     # GAE reads precomputed values (see compute_advantage): one plain critic pass per batch
     # instead of TorchRL's vmapped pass over observation and next observation per epoch.
     advantage = GAE(gamma=lo.gamma, lmbda=lo.lmbda, value_network=None, average_gae=False)

@@ -121,7 +121,7 @@ def css_figure(css: ControlledStartingState):
 
 def _hparams(cfg) -> dict:
     return {
-        "ablation": f"jd={cfg.jd.enabled},css={cfg.css.enabled},tdts={cfg.tdts.enabled}",
+        "variant": cfg.variant,
         "jd": cfg.jd.enabled,
         "css": cfg.css.enabled,
         "tdts": cfg.tdts.enabled,
@@ -160,8 +160,10 @@ def train(cfg, run_dir) -> dict:
     css = find_transform(env, ControlledStartingState)
     evaluator = ProtocolEvaluator(cfg)
 
-    total = int(cfg.collector.total_frames)
+    fpb = int(cfg.collector.frames_per_batch)
+    total = -(-int(cfg.collector.total_frames) // fpb) * fpb  # whole batches
     frames, batches, wall, history, best = 0, 0, 0.0, [], -1.0
+    timing = {"collect_seconds": 0.0, "update_seconds": 0.0, "batches": 0}  # this process only
     if ckpt is not None:
         actor.load_state_dict(ckpt["actor"])
         critic.load_state_dict(ckpt["critic"])
@@ -169,7 +171,7 @@ def train(cfg, run_dir) -> dict:
         loss_module.load_state_dict(ckpt["loss"], strict=False)
         frames, batches, wall = int(ckpt["frames"]), int(ckpt["batches"]), float(ckpt["wall"])
         history, best = list(ckpt["history"]), float(ckpt["best"])
-    collector = make_collector(env, actor, int(cfg.collector.frames_per_batch), max(total - frames, 1))
+    collector = make_collector(env, actor, fpb, max(total - frames, fpb))
     if ckpt is not None:
         _restore_env_state(env, ckpt["env"])
         restore_carrier(collector, ckpt["carrier"])
@@ -253,7 +255,11 @@ def train(cfg, run_dir) -> dict:
         frames += n
         batches += 1
         torch.set_num_threads(cfg.torch_threads)  # the update: torch gets the cores
+        if cfg.optim.anneal_lr:  # linear decay to 0 at the last frame (CleanRL's recipe)
+            for group in optimizer.param_groups:
+                group["lr"] = cfg.optim.lr * max(0.0, 1.0 - (frames - n) / total)
         metrics = ppo_update(data, loss_module, advantage, optimizer, cfg)
+        metrics["train/lr"] = optimizer.param_groups[0]["lr"]
         collector.update_policy_weights_()
         t_updated = time.perf_counter()
         wall += t_updated - t_batch
@@ -262,6 +268,9 @@ def train(cfg, run_dir) -> dict:
         metrics["time/fps"] = n / (t_updated - t_batch)
         metrics["time/collect_seconds"] = t_collected - t_batch
         metrics["time/update_seconds"] = t_updated - t_collected
+        timing["collect_seconds"] += t_collected - t_batch
+        timing["update_seconds"] += t_updated - t_collected
+        timing["batches"] += 1
         metrics["time/wall_seconds"] = wall
         metrics["train/policy_std"] = actor.module[0].module.log_std.exp().mean().item()
         if jd is not None:
@@ -299,6 +308,10 @@ def train(cfg, run_dir) -> dict:
         "best_success_rate": best,
         "first_reached_0.905": first_reach(PAPER_SUCCESS),
         "first_reached_0.99": first_reach(0.99),
+        "collection_frames_per_second": round(
+            timing["batches"] * cfg.collector.frames_per_batch / max(timing["collect_seconds"], 1e-9)
+        ),
+        "update_seconds_per_batch": round(timing["update_seconds"] / max(timing["batches"], 1), 3),
         "history": history,
     }
     (run_dir / "summary.json").write_text(json.dumps(summary, indent=1))

@@ -2,6 +2,10 @@
 
 Goal-relative position (so one policy flies to any goal and follows waypoints), the attitude as
 a rotation matrix (continuous, unlike Euler angles), velocities, and the previous motor command.
+Position and velocity are expressed in the heading frame (the world frame turned by the yaw),
+and the attitude is roll and pitch only: the task is symmetric in yaw, and a policy that sees
+world-frame vectors learns a preferred heading and turns to it, flipping over when it starts
+near yaw +-180 deg (measured: 15-25% crashes on the protocol's starts).
 The scales bring each part to order 1; they are fixed, so a policy file needs no running
 statistics. Accelerations (finite differences, noisy) are left out by default.
 """
@@ -15,6 +19,13 @@ from torchrl.data import Composite, Unbounded
 from bfc import keys
 from bfc.envs.rotations import euler_to_quat, quat_to_matrix
 from bfc.transforms._base import BatchedTransform, check, reset_mask
+
+
+def to_heading_frame(v: torch.Tensor, yaw: torch.Tensor) -> torch.Tensor:
+    """World vectors (..., 3) in the frame turned by `yaw` about z."""
+    c, s = yaw.cos(), yaw.sin()
+    x, y = v[..., 0], v[..., 1]
+    return torch.stack((c * x + s * y, -s * x + c * y, v[..., 2]), -1)
 
 
 class PolicyObservation(BatchedTransform):
@@ -41,12 +52,14 @@ class PolicyObservation(BatchedTransform):
         self.register_buffer("last_action", torch.zeros(num_envs, 4))
 
     def build(self, odometry: torch.Tensor, goal: torch.Tensor, last_action: torch.Tensor) -> torch.Tensor:
-        rel = (odometry[..., 0:3] - goal).clamp(-self.position_clip, self.position_clip)
-        rot = quat_to_matrix(euler_to_quat(odometry[..., 9:12])).flatten(-2)
+        yaw = odometry[..., 11]
+        level = torch.cat((odometry[..., 9:11], torch.zeros_like(yaw).unsqueeze(-1)), -1)
+        rot = quat_to_matrix(euler_to_quat(level)).flatten(-2)  # roll and pitch only
+        rel = to_heading_frame(odometry[..., 0:3] - goal, yaw).clamp(-self.position_clip, self.position_clip)
         parts = [
             rel,
             rot,
-            odometry[..., 3:6] * self.velocity_scale,
+            to_heading_frame(odometry[..., 3:6], yaw) * self.velocity_scale,
             odometry[..., 12:15] * self.angular_velocity_scale,
             last_action,
         ]

@@ -4,7 +4,6 @@ import subprocess
 import sys
 
 import pytest
-from omegaconf.errors import ConfigCompositionException  # noqa: F401
 
 from bfc.config import ABLATIONS, validate
 
@@ -33,6 +32,7 @@ def test_each_ablation_switches_exactly_what_its_name_says(name):
     cfg = compose_cfg([f"+ablation={name}"])
     parts = set(name.split("_")) - {"ppo"}
     assert {s for s in SWITCHES if cfg[s].enabled} == parts
+    assert cfg.variant == name
 
 
 def test_validate_names_the_key():

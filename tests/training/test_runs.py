@@ -93,6 +93,17 @@ def test_joblib_multirun_makes_two_run_directories(tmp_path):
         timeout=600,
     )
     assert r.returncode == 0, r.stderr[-3000:]
-    runs = sorted(p.parent for p in tmp_path.glob("*/policy.pt"))
+    runs = sorted(p.parent for p in tmp_path.glob("*/*/policy.pt"))
     assert len(runs) == 2, list(tmp_path.iterdir())
-    assert {p.name.split(",")[0] for p in runs} == {"+ablation=jd", "+ablation=jd_css_tdts"}
+    assert {p.parent.name for p in runs} == {"jd", "jd_css_tdts"}
+
+
+def test_tiny_run_with_the_adaptive_kl_loss(tmp_path):
+    cfg = compose_cfg([*TINY, "loss.kind=kl", "env.episode_seconds=0.2"])
+    summary = train(cfg, tmp_path)
+    assert summary["frames"] == 2048
+    ea = EventAccumulator(str(tmp_path / "tb"))
+    ea.Reload()
+    assert "loss/kl_beta" in ea.Tags()["scalars"]
+    betas = [e.value for e in ea.Scalars("loss/kl_beta")]
+    assert all(b > 0 for b in betas)

@@ -116,8 +116,9 @@ def test_css_composes_with_jd(cfg):
 
 def test_css_updates_from_real_episodes(cfg):
     cfg = only(cfg, n=16, css=True)
-    cfg.env.episode_seconds = 0.04  # 10 steps
+    cfg.env.control_hz, cfg.env.episode_seconds = 250.0, 0.04  # 10 steps
     env = make_env(cfg, seed=0)
+    assert env.base_env.max_episode_steps == 10
     env.rollout(25, break_when_any_done=False)
     css = find_transform(env, ControlledStartingState)
     assert int(css.episodes.sum()) == 32  # two full episodes per env ended

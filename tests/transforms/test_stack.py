@@ -84,3 +84,37 @@ def test_reward_is_positive_everywhere_short_of_a_crash(cfg):
     r = td["next", "reward"].squeeze(-1)
     crashed = td["next", keys.TERMINATED].squeeze(-1)
     assert (r[~crashed] > 0).all() and (r[crashed] < 0).all()
+
+
+def test_policy_observation_does_not_depend_on_heading():
+    from bfc.envs.rotations import euler_to_quat, quat_to_euler, quat_to_matrix
+    from bfc.transforms.observation import PolicyObservation
+
+    obs = PolicyObservation(1, hover_speed=458.0)
+    goal = torch.tensor([[0.0, 0.0, 1.5]])
+    odom = torch.zeros(1, 18)
+    odom[0, 0:3] = torch.tensor([1.0, -0.5, 2.0])
+    odom[0, 3:6] = torch.tensor([0.3, 0.2, -0.1])
+    odom[0, 9:12] = torch.tensor([0.2, -0.3, 0.4])
+    odom[0, 12:15] = torch.tensor([0.1, 0.2, 0.3])
+    a = obs.build(odom, goal, torch.zeros(1, 4))
+    # turn the whole scene by 2.5 rad about the goal's vertical
+    turn = quat_to_matrix(euler_to_quat(torch.tensor([0.0, 0.0, 2.5])))
+    turned = odom.clone()
+    turned[0, 0:3] = goal[0] + turn @ (odom[0, 0:3] - goal[0])
+    turned[0, 3:6] = turn @ odom[0, 3:6]
+    q = euler_to_quat(odom[0, 9:12])
+    yaw_q = euler_to_quat(torch.tensor([0.0, 0.0, 2.5]))
+    w1, x1, y1, z1 = yaw_q
+    w2, x2, y2, z2 = q
+    prod = torch.stack(
+        (
+            w1 * w2 - x1 * x2 - y1 * y2 - z1 * z2,
+            w1 * x2 + x1 * w2 + y1 * z2 - z1 * y2,
+            w1 * y2 - x1 * z2 + y1 * w2 + z1 * x2,
+            w1 * z2 + x1 * y2 - y1 * x2 + z1 * w2,
+        )
+    )
+    turned[0, 9:12] = quat_to_euler(prod)
+    b = obs.build(turned, goal, torch.zeros(1, 4))
+    torch.testing.assert_close(a, b, atol=1e-5, rtol=1e-5)

@@ -1,0 +1,61 @@
+"""evaluate.py on the shipped policy, and its clean failures."""
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import torch
+
+from bfc.evaluation import fly, protocol_starts, success
+from bfc.policy import read_policy_file
+
+ROOT = Path(__file__).resolve().parents[2]
+SHIPPED = ROOT / "pretrained" / "policy.pt"
+
+
+def evaluate(*args, out):
+    return subprocess.run(
+        [sys.executable, "evaluate.py", *args, f"hydra.run.dir={out}"],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+
+
+def test_shipped_policy_is_data_and_flies_at_its_own_rate():
+    payload = read_policy_file(SHIPPED)  # weights_only load
+    hz = payload["env"]["control_hz"]
+    tr = fly(SHIPPED, protocol_starts(20, seed=0), seconds=10.0)
+    assert tr.shape == (20, round(10.0 * hz))
+    assert success(tr).float().mean() >= 0.9  # the shipped policy clears the paper's 90.5% here too
+
+
+def test_evaluate_writes_results_and_figures(tmp_path):
+    r = evaluate(f"policy={SHIPPED}", "num_starts=12", out=tmp_path)
+    assert r.returncode == 0, r.stderr[-2000:]
+    results = json.loads((tmp_path / "results.json").read_text())
+    assert results["starts"] == 12 and len(results["per_start"]) == 12
+    assert results["success"] + results["fail"] == 12
+    assert 0.0 <= results["success_rate"] <= 1.0
+    for name in ("flight_1.png", "flights_10.png", "flights_all.png", "errors.png"):
+        assert (tmp_path / name).stat().st_size > 10_000
+
+
+def test_missing_policy_fails_cleanly(tmp_path):
+    r = evaluate("policy=/nonexistent/policy.pt", out=tmp_path)
+    assert r.returncode == 2 and "no policy file at /nonexistent/policy.pt" in r.stderr
+    assert "Traceback" not in r.stderr
+
+
+def test_a_checkpoint_is_not_a_policy(tmp_path):
+    fake = tmp_path / "last.pt"
+    torch.save({"frames": 3, "actor": {}}, fake)
+    r = evaluate(f"policy={fake}", out=tmp_path / "run")
+    assert r.returncode == 2 and "not a bfc policy file" in r.stderr
+
+
+def test_unknown_controller_fails_cleanly(tmp_path):
+    r = evaluate("controller=pid", out=tmp_path)
+    assert r.returncode == 2 and "unknown controller 'pid'" in r.stderr
