@@ -23,6 +23,8 @@ from bfc.evaluation.metrics import summarize
 @hydra.main(config_path="conf", config_name="evaluate", version_base="1.3")
 def main(cfg) -> None:
     out = Path(HydraConfig.get().runtime.output_dir)
+    if cfg.suite is not None:
+        return run_suite(cfg, out)
     try:
         if (cfg.policy is None) == (cfg.controller is None):
             raise ValueError(
@@ -61,6 +63,29 @@ def main(cfg) -> None:
         f"{results['success']}/{results['starts']} successful ({results['success_rate']:.0%}), "
         f"{results['crashes']} crashes; flights took {wall:.1f} s; written to {out}"
     )
+
+
+def run_suite(cfg, out: Path) -> None:
+    from bfc.evaluation.report import write_report
+
+    if cfg.suite != "paper":
+        print(f"error: suite must be 'paper', got {cfg.suite!r}", file=sys.stderr)
+        sys.exit(2)
+    controller = cfg.controller or cfg.policy
+    try:
+        if controller is None and cfg.runs is None:
+            raise ValueError("suite=paper needs policy=<path>, controller=<name> and/or runs=<directory of runs>")
+        if cfg.runs is not None and not Path(cfg.runs).is_dir():
+            raise FileNotFoundError(f"runs={cfg.runs} is not a directory")
+        t0 = time.perf_counter()
+        header = (
+            f"Controller: `{controller}`; runs: `{cfg.runs}`. Command: `python evaluate.py {' '.join(sys.argv[1:])}`."
+        )
+        path = write_report(out, controller, cfg.runs, cfg.num_starts, cfg.seed, header=header)
+    except (ValueError, FileNotFoundError) as err:
+        print(f"error: {err}", file=sys.stderr)
+        sys.exit(2)
+    print(f"report written to {path} in {time.perf_counter() - t0:.0f} s")
 
 
 if __name__ == "__main__":

@@ -124,7 +124,7 @@ class EvalConfig:
 @dataclass
 class CheckpointConfig:
     interval_frames: int = 2_000_000
-    keep_best: bool = True
+    keep_best: bool = True  # policy.pt = the best evaluation so far (false: the latest)
 
 
 @dataclass

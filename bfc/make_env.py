@@ -116,18 +116,28 @@ def make_env(
         ts.append(MotorSpeedAction(base.hover_speed, base.max_rotor_speed))
     ts.append(RewardSum())
     ts.append(StepCounter())
-    env = TransformedEnv(base, Compose(*ts))
+    env = BFCEnv(base, Compose(*ts))
     if seed is not None:
-        seed_env(env, seed)
+        env.set_seed(seed)
     return env
 
 
+class BFCEnv(TransformedEnv):
+    """A TransformedEnv whose `set_seed` also seeds bfc's transforms (noise, samplers), each from
+    its own offset of the seed; TorchRL's TransformedEnv seeds only the base env."""
+
+    def set_seed(self, seed: int | None = None, static_seed: bool = False):
+        out = super().set_seed(seed, static_seed=static_seed)
+        if seed is not None:
+            for i, t in enumerate(self.transform):
+                if isinstance(t, BatchedTransform):
+                    t.set_seed(seed + 7919 * (i + 1))
+        return out
+
+
 def seed_env(env: TransformedEnv, seed: int) -> None:
-    """Seed the base env and every bfc transform (each from its own offset of `seed`)."""
+    """Seed the env and its transforms (kept for callers holding a plain TransformedEnv)."""
     env.set_seed(seed)
-    for i, t in enumerate(env.transform):
-        if isinstance(t, BatchedTransform):
-            t.set_seed(seed + 7919 * (i + 1))
 
 
 def find_transform(env: TransformedEnv, cls):

@@ -4,7 +4,8 @@ Everything a run writes goes under its run directory:
     tb/                  TensorBoard events (a resumed run appends here)
     config.yaml          the resolved config
     checkpoints/last.pt  the latest checkpoint (atomic: written to a temporary name, then renamed)
-    policy.pt            the deployable policy (best evaluation so far, later evaluations win ties)
+    policy.pt            the deployable policy: the best evaluation so far, later ones winning ties
+                         (checkpoint.keep_best=false: the latest evaluated policy)
     policy_last.pt       the policy at the end of training
     summary.json         frames, wall-clock, success history, when 0.905 and 0.99 were first reached
 """
@@ -164,6 +165,11 @@ def train(cfg, run_dir) -> dict:
     total = -(-int(cfg.collector.total_frames) // fpb) * fpb  # whole batches
     frames, batches, wall, history, best = 0, 0, 0.0, [], -1.0
     timing = {"collect_seconds": 0.0, "update_seconds": 0.0, "batches": 0}  # this process only
+    if ckpt is not None and int(ckpt["frames"]) >= total and (run_dir / "summary.json").is_file():
+        print(f"{run_dir} already finished ({int(ckpt['frames'])} frames): nothing to resume")
+        env.close()
+        evaluator.env.close()
+        return json.loads((run_dir / "summary.json").read_text())
     if ckpt is not None:
         actor.load_state_dict(ckpt["actor"])
         critic.load_state_dict(ckpt["critic"])
@@ -232,8 +238,8 @@ def train(cfg, run_dir) -> dict:
         metrics["time/eval_seconds"] = time.perf_counter() - t0
         history.append({"frames": frames, "wall_seconds": round(wall, 1), **metrics})
         log(metrics, frames)
-        if metrics["eval/success_rate"] >= best:
-            best = metrics["eval/success_rate"]
+        if metrics["eval/success_rate"] >= best or not cfg.checkpoint.keep_best:
+            best = max(best, metrics["eval/success_rate"])
             write_policy(run_dir / "policy.pt")
         return metrics
 
@@ -273,6 +279,7 @@ def train(cfg, run_dir) -> dict:
         timing["batches"] += 1
         metrics["time/wall_seconds"] = wall
         metrics["train/policy_std"] = actor.module[0].module.log_std.exp().mean().item()
+        metrics["train/physics_failures"] = float(env.base_env.physics_failures)
         if jd is not None:
             metrics["train/jd_probability"] = jd.probability
         else:

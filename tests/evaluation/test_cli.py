@@ -59,3 +59,28 @@ def test_a_checkpoint_is_not_a_policy(tmp_path):
 def test_unknown_controller_fails_cleanly(tmp_path):
     r = evaluate("controller=pid", out=tmp_path)
     assert r.returncode == 2 and "unknown controller 'pid'" in r.stderr
+
+
+def test_paper_suite_writes_a_report_with_figures(tmp_path):
+    r = evaluate("suite=paper", f"policy={SHIPPED}", "num_starts=6", out=tmp_path)
+    assert r.returncode == 0, r.stderr[-2000:]
+    report = (tmp_path / "report.md").read_text()
+    for section in ("## Protocol", "## Accuracy", "## Odometry noise", "## Waypoints"):
+        assert section in report
+    assert report.count("| gaussian") == 6 and report.count("| ou 0.05") == 2
+    for name in ("noise.png", "waypoints_sparse.png", "waypoints_dense.png", "errors.png"):
+        assert (tmp_path / name).stat().st_size > 10_000
+
+
+def test_suite_reads_table_2_from_training_runs(tmp_path):
+    from bfc.evaluation.report import runs_sections
+    from bfc.training import train
+
+    from ..training.helpers import TINY, compose_cfg
+
+    for variant in ("jd", "jd_tdts"):
+        train(compose_cfg([f"+ablation={variant}", *TINY, "env.episode_seconds=0.2"]), tmp_path / "runs" / variant)
+    lines = runs_sections(tmp_path / "runs", tmp_path)
+    rows = [line for line in lines if line.startswith("| jd")]
+    assert [row.split("|")[1].strip() for row in rows] == ["jd", "jd_tdts"]
+    assert (tmp_path / "learning_curves.png").stat().st_size > 10_000

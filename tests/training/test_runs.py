@@ -71,6 +71,10 @@ def test_resumed_run_ends_like_an_uninterrupted_one(tmp_path):
         assert torch.equal(ta[k], tb[k]), k
     for k in a["actor"]:
         assert torch.equal(a["actor"][k], b["actor"][k]), k
+    # resuming a finished run collects nothing more
+    again = train(compose_cfg([*overrides, f"resume={part}"]), part)
+    assert again["frames"] == 4096
+    assert torch.load(part / "checkpoints" / "last.pt", weights_only=True)["frames"] == 4096
 
 
 def test_joblib_multirun_makes_two_run_directories(tmp_path):

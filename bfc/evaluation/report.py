@@ -1,0 +1,210 @@
+"""The paper's evaluation suite as one Markdown report with PNG figures.
+
+What it produces for one policy (seconds each, batched): the protocol table, accuracy over a 10 s
+hover (fig. 17), robustness to odometry noise added at evaluation time (fig. 18), a sparse and a
+dense waypoint course (fig. 22) and the flight figures (figs. 11-16). Given a directory of training
+runs (a `-m` sweep), it adds Table 2 (success per ablation variant, mean over seeds) and the
+learning curves (figs. 8-10) read from the runs' summaries.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import torch  # noqa: E402
+
+from bfc.evaluation.fly import fly  # noqa: E402
+from bfc.evaluation.metrics import summarize  # noqa: E402
+from bfc.evaluation.plots import flight_figures, plot_flights  # noqa: E402
+from bfc.evaluation.protocol import protocol_starts  # noqa: E402
+
+NOISE_CONDITIONS = [
+    ("none", {"kind": "none"}),
+    *[(f"gaussian {s} all", {"kind": "gaussian", "std": s, "elements": "all"}) for s in (0.05, 0.1, 0.2)],
+    ("ou 0.05 all", {"kind": "ou", "std": 0.05, "theta": 1.0, "elements": "all"}),
+    *[(f"gaussian {s} position", {"kind": "gaussian", "std": s, "elements": "position"}) for s in (0.05, 0.1, 0.2)],
+    ("ou 0.05 position", {"kind": "ou", "std": 0.05, "theta": 1.0, "elements": "position"}),
+]
+SPARSE_COURSE = [(0.0, (1.0, 1.0, 1.5)), (5.0, (-1.0, 1.0, 2.0)), (10.0, (-1.0, -1.0, 1.5)), (15.0, (1.0, -1.0, 1.0))]
+
+
+def dense_course(points: int = 24, seconds_each: float = 0.75, radius: float = 1.0) -> list:
+    """A circle of `points` waypoints, one every `seconds_each` (a smooth path)."""
+    return [
+        (
+            i * seconds_each,
+            (
+                radius * math.cos(2 * math.pi * i / points),
+                radius * math.sin(2 * math.pi * i / points),
+                1.5 + 0.3 * math.sin(4 * math.pi * i / points),
+            ),
+        )
+        for i in range(points)
+    ]
+
+
+def _fmt(v, digits=3):
+    return "n/a" if v is None else f"{v:.{digits}f}"
+
+
+def policy_sections(controller, out: Path, num_starts: int = 100, seed: int = 0) -> list[str]:
+    starts = protocol_starts(num_starts, seed)
+    lines = []
+    flights = fly(controller, starts, seconds=10.0, seed=seed)
+    s = summarize(flights)
+    (out / "protocol.json").write_text(json.dumps(s, indent=1))
+    flight_figures(flights, out)
+    lines += [
+        "## Protocol (paper sec. 7.1)",
+        f"{num_starts} starts from `protocol_starts({num_starts}, seed={seed})`, 10 s, "
+        "success = within 0.10 m on every axis for 1 s.",
+        "",
+        "| success | fail | crashes | median time to success (s) | position error after success, mean / p95 (m) "
+        "| attitude error after success, mean / p95 (deg) |",
+        "|---|---|---|---|---|---|",
+        f"| {s['success']} | {s['fail']} | {s['crashes']} | {_fmt(s['time_to_success_median'], 2)} "
+        f"| {_fmt(s['position_error_after_success_m']['mean'])} / {_fmt(s['position_error_after_success_m']['p95'])} "
+        f"| {_fmt(s['attitude_error_after_success_deg']['mean'], 2)} / "
+        f"{_fmt(s['attitude_error_after_success_deg']['p95'], 2)} |",
+        "",
+        "Paper's BFC: 90.5 / 9.5 (Table 2).",
+        "",
+        "![one flight](flight_1.png)",
+        "",
+        "![ten flights](flights_10.png)",
+        "",
+        f"![{num_starts} flights](flights_all.png)",
+        "",
+        "## Accuracy (fig. 17)",
+        "Position and attitude error against time over the same flights (median and 10-90% band).",
+        "",
+        "![errors](errors.png)",
+        "",
+    ]
+    rows = []
+    for name, noise in NOISE_CONDITIONS:
+        nf = fly(controller, starts, seconds=10.0, noise=noise, seed=seed)
+        ns = summarize(nf)
+        rows.append((name, ns))
+    _noise_figure(rows, out / "noise.png")
+    lines += [
+        "## Odometry noise at evaluation time (fig. 18)",
+        "The policy was trained without noise; noise corrupts only what it sees (success is judged on the truth).",
+        "",
+        "| noise | success | crashes | position error after success (m) | attitude error after success (deg) |",
+        "|---|---|---|---|---|",
+        *[
+            f"| {name} | {ns['success']}/{ns['starts']} | {ns['crashes']} "
+            f"| {_fmt(ns['position_error_after_success_m']['mean'])} "
+            f"| {_fmt(ns['attitude_error_after_success_deg']['mean'], 2)} |"
+            for name, ns in rows
+        ],
+        "",
+        "![noise](noise.png)",
+        "",
+    ]
+    level = torch.zeros(1, 12)
+    level[0, 2] = 1.5
+    for label, course, seconds, fname in (
+        ("sparse (4 waypoints, 5 s each)", SPARSE_COURSE, 20.0, "waypoints_sparse.png"),
+        ("dense (a circle of 24 waypoints, 0.75 s each)", dense_course(), 18.0, "waypoints_dense.png"),
+    ):
+        wf = fly(controller, level, seconds=seconds, goal=course, seed=seed)
+        plot_flights(wf, out / fname, f"waypoints: {label}", frame_every=25)
+        lines += [f"## Waypoints (fig. 22): {label}", "", f"![{label}]({fname})", ""]
+    return lines
+
+
+def _noise_figure(rows, path):
+    names = [r[0] for r in rows]
+    rate = [r[1]["success_rate"] for r in rows]
+    err = [r[1]["position_error_after_success_m"]["mean"] or float("nan") for r in rows]
+    fig, axes = plt.subplots(1, 2, figsize=(11, 3.6))
+    axes[0].barh(names, rate, color="tab:blue")
+    axes[0].set_xlabel("success rate")
+    axes[0].set_xlim(0, 1)
+    axes[1].barh(names, err, color="tab:orange")
+    axes[1].set_xlabel("position error after success (m)")
+    for ax in axes:
+        ax.invert_yaxis()
+        ax.grid(alpha=0.3, axis="x")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def runs_sections(runs_dir: Path, out: Path) -> list[str]:
+    """Table 2 and learning curves from every `summary.json` below `runs_dir`."""
+    import yaml
+
+    by_variant: dict[str, list[dict]] = {}
+    for summary_path in sorted(runs_dir.rglob("summary.json")):
+        cfg = yaml.safe_load((summary_path.parent / "config.yaml").read_text())
+        by_variant.setdefault(cfg.get("variant", "?"), []).append(
+            {"seed": cfg["seed"], "frames": cfg["collector"]["total_frames"], **json.loads(summary_path.read_text())}
+        )
+    if not by_variant:
+        return ["## Ablation (Table 2)", f"No training runs (summary.json) under {runs_dir}.", ""]
+    fig, axes = plt.subplots(1, 3, figsize=(15, 3.8))
+    lines = [
+        "## Ablation (Table 2)",
+        f"Runs under `{runs_dir}`; success out of 100 protocol starts at the end of training, mean over seeds.",
+        "",
+        "| variant | seeds | frames each | success (final) | fail | best during training |",
+        "|---|---|---|---|---|---|",
+    ]
+    for variant, runs in sorted(by_variant.items()):
+        final = [100 * (r["final_success_rate"] or 0.0) for r in runs]
+        best = [100 * r["best_success_rate"] for r in runs]
+        mean = sum(final) / len(final)
+        best_mean = sum(best) / len(best)
+        lines.append(
+            f"| {variant} | {len(runs)} | {runs[0]['frames']:,} | {mean:.1f} | {100 - mean:.1f} | {best_mean:.1f} |"
+        )
+        for key, ax, label in (
+            ("eval/success_rate", axes[0], "success rate"),
+            ("eval/position_error", axes[1], "position error (m)"),
+            ("eval/crash_rate", axes[2], "unsuccessful: crash rate"),
+        ):
+            curves = torch.tensor([[h.get(key, float("nan")) for h in r["history"]] for r in runs])
+            frames = torch.tensor([h["frames"] for h in runs[0]["history"]]) / 1e6
+            m = curves.nanmean(0)
+            ax.plot(frames, m, label=variant)
+            if len(runs) > 1:
+                ax.fill_between(frames, curves.min(0).values, curves.max(0).values, alpha=0.15)
+            ax.set_xlabel("frames (M)")
+            ax.set_ylabel(label)
+    axes[0].legend(fontsize=7)
+    for ax in axes:
+        ax.grid(alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(out / "learning_curves.png", dpi=110)
+    plt.close(fig)
+    lines += [
+        "",
+        "## Learning curves (figs. 8-10)",
+        "Mean over seeds, band = min to max.",
+        "",
+        "![learning curves](learning_curves.png)",
+        "",
+    ]
+    return lines
+
+
+def write_report(out, controller=None, runs_dir=None, num_starts: int = 100, seed: int = 0, header: str = "") -> Path:
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    lines = ["# bfc evaluation report", "", header, ""]
+    if controller is not None:
+        lines += policy_sections(controller, out, num_starts, seed)
+    if runs_dir is not None:
+        lines += runs_sections(Path(runs_dir), out)
+    path = out / "report.md"
+    path.write_text("\n".join(lines) + "\n")
+    return path
