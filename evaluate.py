@@ -81,7 +81,12 @@ def run_suite(cfg, out: Path) -> None:
         header = (
             f"Controller: `{controller}`; runs: `{cfg.runs}`. Command: `python evaluate.py {' '.join(sys.argv[1:])}`."
         )
-        path = write_report(out, controller, cfg.runs, cfg.num_starts, cfg.seed, header=header)
+        unknown = [b for b in cfg.baselines if b not in CONTROLLERS]
+        if unknown:
+            raise ValueError(f"unknown baselines {unknown}; available: {sorted(CONTROLLERS)}")
+        path = write_report(
+            out, controller, cfg.runs, cfg.num_starts, cfg.seed, header=header, baselines=list(cfg.baselines)
+        )
     except (ValueError, FileNotFoundError) as err:
         print(f"error: {err}", file=sys.stderr)
         sys.exit(2)

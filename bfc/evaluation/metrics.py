@@ -11,14 +11,10 @@ from bfc.evaluation.protocol import success_and_time
 
 
 def tilt_degrees(quaternion: torch.Tensor) -> torch.Tensor:
-    """Angle between the body z axis and the world z axis (deg)."""
+    """Angle between the body z axis and the world z axis (deg): the attitude error of the protocol's
+    yaw-free task (the BFC policy and, by default, the baselines keep whatever heading they have)."""
     x, y = quaternion[..., 1], quaternion[..., 2]
     return torch.rad2deg(torch.acos((1 - 2 * (x * x + y * y)).clamp(-1.0, 1.0)))
-
-
-def attitude_error_degrees(quaternion: torch.Tensor) -> torch.Tensor:
-    """Rotation angle between the body attitude and level with yaw 0 (deg)."""
-    return torch.rad2deg(2 * torch.acos(quaternion[..., 0].abs().clamp(max=1.0)))
 
 
 def summarize(trajectory: TensorDict, threshold: float = 0.10, hold_seconds: float = 1.0) -> dict:
@@ -27,7 +23,7 @@ def summarize(trajectory: TensorDict, threshold: float = 0.10, hold_seconds: flo
     inside, hold, dt = _inside_and_hold(trajectory, None, threshold, hold_seconds)
     ok, t_success = success_and_time(inside, hold, dt)
     pos_err = (trajectory.get(keys.POSITION) - trajectory.get(keys.GOAL)).norm(dim=-1)
-    att_err = attitude_error_degrees(trajectory.get(keys.QUATERNION))
+    att_err = tilt_degrees(trajectory.get(keys.QUATERNION))  # the task is yaw-free: heading is no error
     time = trajectory.get("time")
     after = ok.unsqueeze(-1) & (time >= torch.nan_to_num(t_success, nan=1e9).unsqueeze(-1))
     crashed = ~trajectory.get("alive")[:, -1]

@@ -70,13 +70,13 @@ def plot_flights(
 
 def plot_errors(trajectory: TensorDict, path, title: str = "position and attitude error"):
     """Position and attitude error against time, median and 10-90% band over flights (fig. 17)."""
-    from bfc.evaluation.metrics import attitude_error_degrees
+    from bfc.evaluation.metrics import tilt_degrees
 
     t = trajectory.get("time")[0]
     pos_err = (trajectory.get(keys.POSITION) - trajectory.get(keys.GOAL)).norm(dim=-1)
-    att = attitude_error_degrees(trajectory.get(keys.QUATERNION))
+    att = tilt_degrees(trajectory.get(keys.QUATERNION))
     fig, axes = plt.subplots(1, 2, figsize=(10, 3.4))
-    for ax, err, label in ((axes[0], pos_err, "position error (m)"), (axes[1], att, "attitude error (deg)")):
+    for ax, err, label in ((axes[0], pos_err, "position error (m)"), (axes[1], att, "attitude error: tilt (deg)")):
         q = torch.quantile(err, torch.tensor([0.1, 0.5, 0.9]), dim=0)
         ax.fill_between(t, q[0], q[2], alpha=0.3, label="10-90%")
         ax.plot(t, q[1], label="median")

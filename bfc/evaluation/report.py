@@ -19,8 +19,10 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import torch  # noqa: E402
 
+from bfc.controllers import CONTROLLERS  # noqa: E402
+from bfc.envs.rotations import euler_to_quat  # noqa: E402
 from bfc.evaluation.fly import fly  # noqa: E402
-from bfc.evaluation.metrics import summarize  # noqa: E402
+from bfc.evaluation.metrics import summarize, tilt_degrees  # noqa: E402
 from bfc.evaluation.plots import flight_figures, plot_flights  # noqa: E402
 from bfc.evaluation.protocol import protocol_starts  # noqa: E402
 
@@ -66,7 +68,7 @@ def policy_sections(controller, out: Path, num_starts: int = 100, seed: int = 0)
         "success = within 0.10 m on every axis for 1 s.",
         "",
         "| success | fail | crashes | median time to success (s) | position error after success, mean / p95 (m) "
-        "| attitude error after success, mean / p95 (deg) |",
+        "| tilt after success, mean / p95 (deg) |",
         "|---|---|---|---|---|---|",
         f"| {s['success']} | {s['fail']} | {s['crashes']} | {_fmt(s['time_to_success_median'], 2)} "
         f"| {_fmt(s['position_error_after_success_m']['mean'])} / {_fmt(s['position_error_after_success_m']['p95'])} "
@@ -97,7 +99,7 @@ def policy_sections(controller, out: Path, num_starts: int = 100, seed: int = 0)
         "## Odometry noise at evaluation time (fig. 18)",
         "The policy was trained without noise; noise corrupts only what it sees (success is judged on the truth).",
         "",
-        "| noise | success | crashes | position error after success (m) | attitude error after success (deg) |",
+        "| noise | success | crashes | position error after success (m) | tilt after success (deg) |",
         "|---|---|---|---|---|",
         *[
             f"| {name} | {ns['success']}/{ns['starts']} | {ns['crashes']} "
@@ -119,6 +121,78 @@ def policy_sections(controller, out: Path, num_starts: int = 100, seed: int = 0)
         plot_flights(wf, out / fname, f"waypoints: {label}", frame_every=25)
         lines += [f"## Waypoints (fig. 22): {label}", "", f"![{label}]({fname})", ""]
     return lines
+
+
+TILT_BINS = (0, 15, 30, 45, 60, 75, 90)  # degrees of initial tilt (roll and pitch up to 60 give up to 75.5)
+
+
+def start_tilt_degrees(starts: torch.Tensor) -> torch.Tensor:
+    """(n,) angle between the body z axis and the vertical at the start (deg)."""
+    return tilt_degrees(euler_to_quat(starts[:, 3:6].double()))
+
+
+def controller_sections(controllers: dict, out: Path, num_starts: int = 100, seed: int = 0) -> list[str]:
+    """BFC against the classical baselines on the same starts (paper figs. 19-21): success, success
+    by initial tilt, time to success, errors after success and compute time per control step."""
+    starts = protocol_starts(num_starts, seed)
+    tilt = start_tilt_degrees(starts)
+    bins = [(lo, hi, (tilt >= lo) & (tilt < hi)) for lo, hi in zip(TILT_BINS[:-1], TILT_BINS[1:], strict=True)]
+    bins = [b for b in bins if bool(b[2].any())]
+    table, by_tilt = [], {}
+    for label, controller in controllers.items():
+        flights = fly(controller, starts, seconds=10.0, seed=seed)
+        s = summarize(flights)
+        ok = torch.tensor([r["success"] for r in s["per_start"]])
+        by_tilt[label] = [ok[mask].float().mean().item() for _, _, mask in bins]
+        step_ms = 1e3 * flights.get("controller_seconds")[0].mean().item()
+        table.append(
+            f"| {label} | {s['success']}/{s['starts']} | {s['crashes']} | {_fmt(s['time_to_success_median'], 2)} "
+            f"| {_fmt(s['position_error_after_success_m']['mean'])} "
+            f"| {_fmt(s['attitude_error_after_success_deg']['mean'], 2)} "
+            f"| {step_ms:.2f} | {1e3 * step_ms / num_starts:.1f} |"
+        )
+        plot_flights(flights[:10], out / f"flights_{label}.png", f"{label}: ten protocol flights", frame_every=25)
+    _tilt_figure(bins, by_tilt, out / "controllers_tilt.png")
+    names = list(controllers)
+    return [
+        "## Controllers on the same starts (figs. 19-21)",
+        "Every controller flies the same protocol starts through the same env at its own control rate; "
+        "compute is the wall-clock of one call for the whole batch, and per env.",
+        "",
+        "| controller | success | crashes | median time to success (s) | position error after success (m) "
+        "| tilt after success (deg) | compute per step, batch (ms) | per env (us) |",
+        "|---|---|---|---|---|---|---|---|",
+        *table,
+        "",
+        "Success by initial tilt (the angle between the body's z axis and the vertical at release):",
+        "",
+        "| initial tilt (deg) | starts | " + " | ".join(names) + " |",
+        "|---|---|" + "---|" * len(names),
+        *[
+            f"| {lo}-{hi} | {int(mask.sum())} | " + " | ".join(f"{by_tilt[n][i]:.2f}" for n in names) + " |"
+            for i, (lo, hi, mask) in enumerate(bins)
+        ],
+        "",
+        "![success by initial tilt](controllers_tilt.png)",
+        "",
+        *[f"![{n}](flights_{n}.png)\n" for n in names],
+    ]
+
+
+def _tilt_figure(bins, by_tilt: dict, path) -> None:
+    fig, ax = plt.subplots(figsize=(8, 3.6))
+    width = 0.8 / max(1, len(by_tilt))
+    for k, (label, rates) in enumerate(by_tilt.items()):
+        ax.bar([i + k * width for i in range(len(bins))], rates, width, label=label)
+    ax.set_xticks([i + 0.4 - width / 2 for i in range(len(bins))], [f"{lo}-{hi}" for lo, hi, _ in bins])
+    ax.set_xlabel("initial tilt (deg)")
+    ax.set_ylabel("success rate")
+    ax.set_ylim(0, 1.05)
+    ax.grid(alpha=0.3, axis="y")
+    ax.legend()
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
 
 
 def _noise_figure(rows, path):
@@ -197,12 +271,21 @@ def runs_sections(runs_dir: Path, out: Path) -> list[str]:
     return lines
 
 
-def write_report(out, controller=None, runs_dir=None, num_starts: int = 100, seed: int = 0, header: str = "") -> Path:
+def write_report(
+    out, controller=None, runs_dir=None, num_starts: int = 100, seed: int = 0, header: str = "", baselines=()
+) -> Path:
+    """report.md and its figures in `out`: the protocol suite for `controller` (a policy path or a
+    controller name), the comparison with `baselines` (controller names), and Table 2 and the
+    learning curves of the runs under `runs_dir`."""
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     lines = ["# bfc evaluation report", "", header, ""]
     if controller is not None:
         lines += policy_sections(controller, out, num_starts, seed)
+        label = "bfc" if str(controller) not in CONTROLLERS else str(controller)
+        others = {b: b for b in baselines if b != label}
+        if others:
+            lines += controller_sections({label: controller, **others}, out, num_starts, seed)
     if runs_dir is not None:
         lines += runs_sections(Path(runs_dir), out)
     path = out / "report.md"

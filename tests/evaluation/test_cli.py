@@ -65,10 +65,13 @@ def test_paper_suite_writes_a_report_with_figures(tmp_path):
     r = evaluate("suite=paper", f"policy={SHIPPED}", "num_starts=6", out=tmp_path)
     assert r.returncode == 0, r.stderr[-2000:]
     report = (tmp_path / "report.md").read_text()
-    for section in ("## Protocol", "## Accuracy", "## Odometry noise", "## Waypoints"):
+    for section in ("## Protocol", "## Accuracy", "## Odometry noise", "## Waypoints", "## Controllers"):
         assert section in report
+    # the baselines flew the same starts: one row each in the comparison, beside the policy
+    for name in ("bfc", "mpc", "lee"):
+        assert sum(line.startswith(f"| {name} | ") for line in report.splitlines()) == 1, name
     assert report.count("| gaussian") == 6 and report.count("| ou 0.05") == 2
-    for name in ("noise.png", "waypoints_sparse.png", "waypoints_dense.png", "errors.png"):
+    for name in ("noise.png", "waypoints_sparse.png", "waypoints_dense.png", "errors.png", "controllers_tilt.png"):
         assert (tmp_path / name).stat().st_size > 10_000
 
 

@@ -1,0 +1,52 @@
+"""Thrust and body torques <-> the four motor speeds of the Hummingbird ("+" layout).
+
+Shared by the Lee controller and the MPC's attitude loop, so both command exactly the airframe the
+env flies: the same arm length, k_f, moment constant, spin directions and speed limit.
+"""
+
+from __future__ import annotations
+
+import torch
+
+from bfc.envs.params import ROTOR_DIRECTIONS, ROTOR_YAW_SIGNS, AirframeParams
+
+
+def allocation_matrix(airframe: AirframeParams) -> torch.Tensor:
+    """(4, 4) float64 M with [thrust, torque_x, torque_y, torque_z] = M @ rotor forces (N).
+
+    A rotor at (x, y) pushing F along body z gives torque r x F = (y F, -x F, 0); its reaction
+    yaw moment is sign * moment_constant * F (sign from bfc.envs.params.ROTOR_YAW_SIGNS).
+    """
+    L, km = airframe.arm_length, airframe.moment_constant
+    rows = [
+        [1.0] * 4,
+        [dy * L for _, dy in ROTOR_DIRECTIONS],
+        [-dx * L for dx, _ in ROTOR_DIRECTIONS],
+        [s * km for s in ROTOR_YAW_SIGNS],
+    ]
+    return torch.tensor(rows, dtype=torch.float64)
+
+
+class Mixer:
+    """Batched: `speeds = mixer(thrust (n,), torque (n, 3))` in rad/s, clipped to [0, max]."""
+
+    def __init__(self, airframe: AirframeParams):
+        self.airframe = airframe
+        self.matrix = allocation_matrix(airframe)
+        self.inverse = torch.linalg.inv(self.matrix)
+        self.max_speed = float(airframe.max_rotor_speed)
+
+    def __call__(self, thrust: torch.Tensor, torque: torch.Tensor) -> torch.Tensor:
+        if thrust.shape != torque.shape[:-1] or torque.shape[-1] != 3:
+            raise ValueError(
+                f"thrust (n,) and torque (n, 3) expected, got {tuple(thrust.shape)} and {tuple(torque.shape)}"
+            )
+        wrench = torch.cat((thrust.unsqueeze(-1), torque), -1).to(torch.float64)
+        forces = wrench @ self.inverse.T
+        squared = (forces / self.airframe.motor_constant).clamp(0.0, self.max_speed**2)
+        return squared.sqrt()
+
+    def wrench(self, speeds: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """(thrust (n,), torque (n, 3)) that motor speeds (n, 4) produce: the inverse map."""
+        out = (self.airframe.motor_constant * speeds.to(torch.float64) ** 2) @ self.matrix.T
+        return out[..., 0], out[..., 1:]
