@@ -76,6 +76,7 @@ class ModelConfig:
     activation: str = "tanh"  # tanh | relu | elu
     init_std: float = 0.2
     include_acceleration: bool = False
+    action_map: str = "thrust"  # thrust | speed: how the policy's [-1, 1] maps to motor speed (transforms/action.py)
 
 
 @dataclass
@@ -183,6 +184,7 @@ def validate(cfg) -> None:
         cfg.model.activation in ("tanh", "relu", "elu"), "model.activation", "tanh, relu or elu", cfg.model.activation
     )
     _check(cfg.model.init_std > 0, "model.init_std", "> 0", cfg.model.init_std)
+    _check(cfg.model.action_map in ("thrust", "speed"), "model.action_map", "thrust or speed", cfg.model.action_map)
     _check(cfg.noise.kind in ("none", "gaussian", "ou"), "noise.kind", "none, gaussian or ou", cfg.noise.kind)
     _check(cfg.eval.interval_frames > 0, "eval.interval_frames", "> 0", cfg.eval.interval_frames)
     _check(cfg.eval.num_starts >= 1, "eval.num_starts", ">= 1", cfg.eval.num_starts)

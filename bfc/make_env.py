@@ -112,8 +112,16 @@ def make_env(
     if noise_t is not None:
         ts.append(noise_t)
     if policy_io:
-        ts.append(PolicyObservation(n, base.hover_speed, include_acceleration=cfg.model.include_acceleration))
-        ts.append(MotorSpeedAction(base.hover_speed, base.max_rotor_speed))
+        action = MotorSpeedAction(base.hover_speed, base.max_rotor_speed, cfg.model.action_map)
+        ts.append(
+            PolicyObservation(
+                n,
+                base.hover_speed,
+                include_acceleration=cfg.model.include_acceleration,
+                command_to_action=action.to_action,
+            )
+        )
+        ts.append(action)
     ts.append(RewardSum())
     ts.append(StepCounter())
     env = BFCEnv(base, Compose(*ts))

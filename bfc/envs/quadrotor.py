@@ -44,7 +44,7 @@ class RewardParams:
     """Shaped reward: closer and more level is better (weights per term; see docs/env.md).
 
     P = position |p - g| + tilt (1 - cos tilt) + yaw (1 - cos yaw) + velocity |v|^2
-        + angular_velocity |w|^2 + action |a|^2,      a = (command - hover) / hover
+        + angular_velocity |w|^2 + yaw_rate w_z^2 + action |a|^2,      a = (command - hover) / hover
     r = scale * (alive exp(-P / alive) + precision exp(-|p - g|^2 / precision_radius^2))
     and a crash adds -scale * crash_penalty. The step reward is positive everywhere, so staying
     alive always beats crashing (with `alive - P` it is negative far from the goal, and PPO
@@ -57,6 +57,7 @@ class RewardParams:
     yaw: float = 0.0  # yaw is free: with 0.1 policies flip over to "turn round" from yaw +-180 (docs)
     velocity: float = 0.05
     angular_velocity: float = 0.005
+    yaw_rate: float = 0.05  # heading is free, spinning is not: without it hovers spin up (docs/env.md)
     action: float = 0.05
     precision: float = 1.0
     precision_radius: float = 0.1
@@ -395,6 +396,7 @@ class QuadrotorEnv(EnvBase):
             + rp.yaw * (1 - cos_yaw)
             + rp.velocity * np.square(phys[:, _LINVEL]).sum(-1)
             + rp.angular_velocity * np.square(phys[:, _ANGVEL]).sum(-1)
+            + rp.yaw_rate * np.square(phys[:, 13])
             + rp.action * np.square(act).sum(-1)
         )
         r = rp.alive * np.exp(-penalty / rp.alive) + rp.precision * np.exp(-np.square(dist / rp.precision_radius))

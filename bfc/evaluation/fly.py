@@ -140,17 +140,23 @@ def fly(
     if seconds <= 0:
         raise ValueError(f"seconds must be > 0, got {seconds}")
     if isinstance(controller, (str, bytes)) and str(controller) in CONTROLLERS:
-        name, settings, policy_io = str(controller), None, False
+        name, settings, policy_io, model = str(controller), None, False, {}
     elif is_module(controller):
-        name, settings, policy_io = None, None, False
+        name, settings, policy_io, model = None, None, False, {}
     elif isinstance(controller, (str, bytes)) or hasattr(controller, "__fspath__"):
         name = None
         controller, payload = load_policy(controller)
         settings, policy_io = payload["env"], True
+        # fly it with the observation and action maps it was trained with (files written before
+        # `action_map` existed used the speed map)
+        model = {
+            "action_map": payload["model"].get("action_map", "speed"),
+            "include_acceleration": payload["observation"]["include_acceleration"],
+        }
     else:
         allowed = f"a policy.pt path, one of {sorted(CONTROLLERS)} or a TensorDictModule"
         raise ValueError(f"controller must be {allowed}, got {controller!r}")
-    cfg = config_for(settings, noise=noise or {"kind": "none"})
+    cfg = config_for(settings, noise=noise or {"kind": "none"}, model=model)
     if settings is None:
         cfg.env.control_hz = float(control_hz or PROTOCOL_HZ)
     elif control_hz is not None and float(control_hz) != float(settings["control_hz"]):

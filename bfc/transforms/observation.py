@@ -38,6 +38,7 @@ class PolicyObservation(BatchedTransform):
         angular_velocity_scale: float = 0.1,
         include_acceleration: bool = False,
         acceleration_scale: float = 0.05,
+        command_to_action=None,
     ):
         super().__init__(num_envs, in_keys=[keys.ODOMETRY, keys.GOAL], out_keys=[keys.OBSERVATION])
         check(hover_speed > 0, "hover_speed", "> 0", hover_speed)
@@ -49,6 +50,8 @@ class PolicyObservation(BatchedTransform):
         self.include_acceleration = bool(include_acceleration)
         self.acceleration_scale = float(acceleration_scale)
         self.size = 22 + (6 if include_acceleration else 0)
+        # the previous command is shown in the policy's own action space (MotorSpeedAction.to_action)
+        self.command_to_action = command_to_action or (lambda command: command / self.hover_speed - 1.0)
         self.register_buffer("last_action", torch.zeros(num_envs, 4))
 
     def build(self, odometry: torch.Tensor, goal: torch.Tensor, last_action: torch.Tensor) -> torch.Tensor:
@@ -74,7 +77,7 @@ class PolicyObservation(BatchedTransform):
     def _step(self, tensordict: TensorDictBase, next_tensordict: TensorDictBase) -> TensorDictBase:
         # The action here is the motor command in rad/s (inverse transforms already ran).
         command = tensordict.get(keys.ACTION)
-        self.last_action.copy_(((command - self.hover_speed) / self.hover_speed).clamp(-1, 1))
+        self.last_action.copy_(self.command_to_action(command).clamp(-1, 1))
         return self._call(next_tensordict)
 
     def _reset(self, tensordict: TensorDictBase, tensordict_reset: TensorDictBase) -> TensorDictBase:

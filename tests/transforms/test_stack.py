@@ -1,5 +1,5 @@
 """The full transform stack on the env: specs, partial resets, seeding, policy observation."""
-
+import pytest
 import torch
 from torchrl.envs.utils import check_env_specs
 
@@ -131,3 +131,23 @@ def test_env_set_seed_also_seeds_the_transforms(cfg):
     assert torch.equal(ra[keys.ODOMETRY], rb[keys.ODOMETRY])  # same JD/CSS starts and the same noise
     b.set_seed(12)
     assert not torch.equal(a.reset()[keys.ODOMETRY], b.reset()[keys.ODOMETRY])
+
+
+def test_thrust_action_map_is_linear_in_thrust_and_round_trips():
+    from bfc.transforms import MotorSpeedAction
+
+    hover = 457.0
+    thrust_map, speed_map = MotorSpeedAction(hover, 838.0, "thrust"), MotorSpeedAction(hover, 838.0, "speed")
+    a = torch.linspace(-0.45, 1.0, 30)
+    w = thrust_map._inv_apply_transform(a)
+    torch.testing.assert_close((w / hover) ** 2, 1 + 2 * a)  # thrust is linear in the action
+    torch.testing.assert_close(thrust_map.to_action(w), a)
+    torch.testing.assert_close(speed_map._inv_apply_transform(a) / hover, (1 + a).clamp(max=838.0 / hover))
+    # zero-mean exploration noise leaves the mean thrust where the mean action puts it
+    noisy = 0.1 + 0.2 * torch.randn(200_000, generator=torch.Generator().manual_seed(0))
+    mean_thrust = (thrust_map._inv_apply_transform(noisy) / hover).pow(2).mean()
+    assert mean_thrust.item() == pytest.approx(1.2, abs=0.01)
+    assert (speed_map._inv_apply_transform(noisy) / hover).pow(2).mean().item() > 1.23  # the speed map is biased up
+    assert (w <= 838.0).all() and thrust_map._inv_apply_transform(torch.tensor([-1.0])).item() == 0.0
+    with pytest.raises(ValueError, match="model.action_map"):
+        MotorSpeedAction(hover, 838.0, "rpm")
