@@ -27,7 +27,10 @@ def main(cfg) -> float:
             if not (run_dir / "checkpoints" / "last.pt").is_file():
                 raise FileNotFoundError(f"resume={cfg.resume}: no checkpoints/last.pt there to resume from")
             # The run goes on with the config it started with.
-            cfg = OmegaConf.merge(cfg, OmegaConf.load(run_dir / "config.yaml"), {"resume": str(run_dir)})
+            saved = OmegaConf.load(run_dir / "config.yaml")
+            if "action_map" not in saved.get("model", {}):  # runs started before the thrust map existed
+                saved.model.action_map = "speed"
+            cfg = OmegaConf.merge(cfg, saved, {"resume": str(run_dir)})
         else:
             run_dir = Path(HydraConfig.get().runtime.output_dir)
         validate(cfg)

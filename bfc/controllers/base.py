@@ -60,7 +60,7 @@ class Controller(TensorDictModuleBase):
         self.airframe, self.dt = airframe, float(dt)
         self.mixer = Mixer(airframe)
         self.mass, self.gravity = airframe.total_mass, airframe.gravity
-        self.inertia = torch.tensor(airframe.inertia, dtype=torch.float64)
+        self.inertia = torch.tensor(airframe.rigid_inertia, dtype=torch.float64)
 
     def reset(self) -> None:
         """Forget per-flight state (subclasses with state extend this)."""

@@ -1,7 +1,7 @@
 """Thrust and body torques <-> the four motor speeds of the Hummingbird ("+" layout).
 
-Shared by the Lee controller and the MPC's attitude loop, so both command exactly the airframe the
-env flies: the same arm length, k_f, moment constant, spin directions and speed limit.
+Shared by the Lee controller and the MPC's attitude loop, so both command the airframe the env
+flies: the same arm length, k_f, moment constant, spin directions and speed limit.
 """
 
 from __future__ import annotations
@@ -28,7 +28,8 @@ def allocation_matrix(airframe: AirframeParams) -> torch.Tensor:
 
 
 class Mixer:
-    """Batched: `speeds = mixer(thrust (n,), torque (n, 3))` in rad/s, clipped to [0, max]."""
+    """Batched: `speeds = mixer(thrust (n,), torque (n, 3))` in rad/s, within [0, max]. When a
+    motor would saturate, the thrust gives way first so the torques (the attitude) are kept."""
 
     def __init__(self, airframe: AirframeParams):
         self.airframe = airframe
@@ -43,8 +44,13 @@ class Mixer:
             )
         wrench = torch.cat((thrust.unsqueeze(-1), torque), -1).to(torch.float64)
         forces = wrench @ self.inverse.T
-        squared = (forces / self.airframe.motor_constant).clamp(0.0, self.max_speed**2)
-        return squared.sqrt()
+        # Saturation gives way in thrust, not torque: shift all four forces together (which changes
+        # only the thrust) to bring them inside [0, max] where the spread allows, then clip.
+        f_max = self.airframe.motor_constant * self.max_speed**2
+        low = (-forces.min(-1, keepdim=True).values).clamp_min(0.0)
+        high = (forces.max(-1, keepdim=True).values - f_max).clamp_min(0.0)
+        forces = (forces + low - high).clamp(0.0, f_max)
+        return (forces / self.airframe.motor_constant).sqrt()
 
     def wrench(self, speeds: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """(thrust (n,), torque (n, 3)) that motor speeds (n, 4) produce: the inverse map."""

@@ -35,7 +35,14 @@ import torch
 from bfc.controllers.base import Controller, Odometry
 from bfc.envs.params import AirframeParams
 
-_SOLVED = (osqp.SolverStatus.OSQP_SOLVED, osqp.SolverStatus.OSQP_SOLVED_INACCURATE)
+# Statuses whose iterate is used (clipped to the box): one slow env in the batched problem must not
+# send every env to the fallback. Anything else (infeasible, non-convex, ...) flies the LQR.
+_USABLE = (
+    osqp.SolverStatus.OSQP_SOLVED,
+    osqp.SolverStatus.OSQP_SOLVED_INACCURATE,
+    osqp.SolverStatus.OSQP_MAX_ITER_REACHED,
+    osqp.SolverStatus.OSQP_TIME_LIMIT_REACHED,
+)
 
 
 @dataclass
@@ -163,7 +170,7 @@ class LinearMPC(Controller):
         super().__init__(airframe, dt)
         self.params = p = params or MPCParams()
         self.model = LinearModel(p, self.gravity)
-        self.every = max(1, round(1.0 / (p.rate_hz * self.dt)))  # control steps per QP solve
+        self.max_thrust = 4 * airframe.motor_constant * airframe.max_rotor_speed**2 / self.mass  # m/s^2
         self.solves, self.fallbacks = 0, 0  # fallbacks: envs x solves flown by the LQR instead
         self._solver, self._n = None, 0
 
@@ -213,7 +220,7 @@ class LinearMPC(Controller):
         result = self._solver.solve(raise_error=False)
         self.solves += 1
         lqr = u_ss + (x_ss - x0) @ m.K.T
-        if result.info.status_val in _SOLVED and result.x is not None:
+        if result.info.status_val in _USABLE and result.x is not None:
             u = torch.from_numpy(np.asarray(result.x)).reshape(n, -1)[:, :3]
             bad = ~torch.isfinite(u).all(-1)
         else:
@@ -227,20 +234,22 @@ class LinearMPC(Controller):
         if self._n != n:
             self._start(n)
         roll, pitch, yaw = odo.rpy.unbind(-1)
-        if self._count % self.every == 0:
+        # Solve at rate_hz on average whatever the control rate (every 2nd or 3rd step at 250 Hz).
+        ticks = self._count * self.dt * p.rate_hz
+        if self._count == 0 or math.floor(ticks + 1e-9) > math.floor(ticks - self.dt * p.rate_hz + 1e-9):
             cy, sy = yaw.cos(), yaw.sin()
             att = torch.stack((cy * roll - sy * pitch, sy * roll + cy * pitch), -1)  # yaw-aligned frame
             if p.offset_free:
                 model_acc = odo.velocity * self.model.drag_rate + torch.stack(
                     (g * att[:, 1], -g * att[:, 0], self._u_prev[:, 2]), -1
                 )
-                rate = min(1.0, self.every * self.dt / p.disturbance_time_constant)
+                rate = min(1.0, 1.0 / (p.rate_hz * p.disturbance_time_constant))
                 self._disturbance += rate * (odo.acceleration - model_acc - self._disturbance)
                 self._disturbance.clamp_(-p.disturbance_max, p.disturbance_max)
             x0 = torch.cat((odo.position, odo.velocity, att), -1)
             u = self._solve(x0, goal)
             self._u_prev = u
-            thrust = (u[:, 2] + g) / (roll.cos() * pitch.cos()).clamp_min(1e-3)
+            thrust = ((u[:, 2] + g) / (roll.cos() * pitch.cos()).clamp_min(1e-3)).clamp_max(self.max_thrust)
             ux, uy = u[:, 1] * g / thrust, u[:, 0] * g / thrust  # back to the body's yaw frame
             yaw_error = torch.zeros_like(yaw) if p.yaw is None else _wrap(p.yaw - yaw)
             yaw_rate = (p.k_yaw * yaw_error).clamp(

@@ -46,6 +46,14 @@ class AirframeParams:
         return self.body_mass + 4 * self.rotor_mass + self.imu_mass
 
     @property
+    def rigid_inertia(self) -> tuple[float, float, float]:
+        """Inertia of the whole rigid body (kg m^2): the base link plus the rotors as point masses
+        at the arm tips (what MuJoCo integrates; controllers use it for J alpha)."""
+        arm = self.rotor_mass * self.arm_length**2
+        ixx, iyy, izz = self.inertia
+        return (ixx + 2 * arm, iyy + 2 * arm, izz + 4 * arm)
+
+    @property
     def hover_speed(self) -> float:
         """Rotor speed (rad/s) at which four rotors carry the weight: sqrt(m g / (4 k_f))."""
         return math.sqrt(self.total_mass * self.gravity / (4 * self.motor_constant))

@@ -16,8 +16,8 @@ from torchrl.envs import TransformedEnv
 from torchrl.envs.utils import ExplorationType, set_exploration_type, step_mdp
 
 from bfc import keys
-from bfc.controllers import CONTROLLERS
-from bfc.transforms import GivenStarts
+from bfc.controllers import CONTROLLERS, Controller
+from bfc.transforms import GivenStarts, MotorSpeedAction
 
 
 def _given_starts(env: TransformedEnv) -> GivenStarts:
@@ -45,7 +45,7 @@ def run_flights(env: TransformedEnv, policy, starts: torch.Tensor, steps: int, g
 
     goal_schedule: optional list of (step, goal (3,)) switching the goal in flight.
     Returns a TensorDict of shape (n, steps) with the ground truth, what the controller saw
-    (`"odometry"`), the controller's `"action"`, `"goal"`, `"alive"`, `"time"` (s) and
+    (`"odometry"`), the controller's `"action"` (motor speed commands, rad/s), `"goal"`, `"alive"`, `"time"` (s) and
     `"controller_seconds"` (wall-clock of the controller's call for the whole batch at that step).
     """
     base = env.base_env
@@ -53,6 +53,11 @@ def run_flights(env: TransformedEnv, policy, starts: torch.Tensor, steps: int, g
     schedule = dict((int(s), g) for s, g in (goal_schedule or []))
     if 0 in schedule:
         base.set_goal(schedule[0])
+    if isinstance(policy, Controller):  # forget the previous flight's integrators and warm start
+        policy.reset()
+    # A policy acts in its own [-1, 1] space: record every controller's command in rad/s.
+    action_map = next((t for t in env.transform if isinstance(t, MotorSpeedAction)), None)
+    to_rad_s = action_map._inv_apply_transform if action_map is not None else (lambda a: a)
     td = env.reset()
     n = base.num_envs
     alive = torch.ones(n, dtype=torch.bool)
@@ -74,7 +79,7 @@ def run_flights(env: TransformedEnv, policy, starts: torch.Tensor, steps: int, g
                         keys.STATE: nxt.get(keys.STATE).clone(),
                         keys.ODOMETRY: nxt.get(keys.ODOMETRY).clone(),
                         keys.GOAL: nxt.get(keys.GOAL).clone(),
-                        keys.ACTION: td.get(keys.ACTION).clone(),
+                        keys.ACTION: to_rad_s(td.get(keys.ACTION)).clone(),
                         "alive": alive.clone(),
                         "time": torch.full((n,), (t + 1) * base.dt),
                         "controller_seconds": torch.full((n,), seconds),

@@ -144,7 +144,7 @@ def controller_sections(controllers: dict, out: Path, num_starts: int = 100, see
         s = summarize(flights)
         ok = torch.tensor([r["success"] for r in s["per_start"]])
         by_tilt[label] = [ok[mask].float().mean().item() for _, _, mask in bins]
-        step_ms = 1e3 * flights.get("controller_seconds")[0].mean().item()
+        step_ms = 1e3 * flights.get("controller_seconds")[0, 1:].mean().item()  # the first call sets up
         table.append(
             f"| {label} | {s['success']}/{s['starts']} | {s['crashes']} | {_fmt(s['time_to_success_median'], 2)} "
             f"| {_fmt(s['position_error_after_success_m']['mean'])} "
@@ -213,19 +213,48 @@ def _noise_figure(rows, path):
     plt.close(fig)
 
 
+def _tb_scalars(run_dir: Path, tag: str) -> tuple[torch.Tensor, torch.Tensor]:
+    """(frames, values) of one scalar tag from a run's TensorBoard events."""
+    from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+
+    acc = EventAccumulator(str(run_dir / "tb"), size_guidance={"scalars": 0})
+    acc.Reload()
+    if tag not in acc.Tags().get("scalars", []):
+        return torch.zeros(0), torch.zeros(0)
+    events = acc.Scalars(tag)
+    return torch.tensor([e.step for e in events], dtype=torch.float64), torch.tensor([e.value for e in events])
+
+
+def _plot_band(ax, x: torch.Tensor, curves: list[torch.Tensor], label: str) -> None:
+    """Mean over seeds with a min-max band (curves cut to the shortest)."""
+    k = min(len(c) for c in curves)
+    if k == 0:
+        return
+    stack = torch.stack([c[:k] for c in curves])
+    ax.plot(x[:k], stack.nanmean(0), label=label)
+    if len(curves) > 1:
+        ax.fill_between(x[:k], stack.min(0).values, stack.max(0).values, alpha=0.15)
+
+
 def runs_sections(runs_dir: Path, out: Path) -> list[str]:
-    """Table 2 and learning curves from every `summary.json` below `runs_dir`."""
+    """Table 2 and the learning curves (figs. 8-10) of every run (`summary.json`) below `runs_dir`:
+    the evaluations from the summaries, the episode returns from the TensorBoard events."""
     import yaml
 
     by_variant: dict[str, list[dict]] = {}
     for summary_path in sorted(runs_dir.rglob("summary.json")):
         cfg = yaml.safe_load((summary_path.parent / "config.yaml").read_text())
         by_variant.setdefault(cfg.get("variant", "?"), []).append(
-            {"seed": cfg["seed"], "frames": cfg["collector"]["total_frames"], **json.loads(summary_path.read_text())}
+            {
+                "dir": summary_path.parent,
+                "seed": cfg["seed"],
+                "frames": cfg["collector"]["total_frames"],
+                **json.loads(summary_path.read_text()),
+            }
         )
     if not by_variant:
         return ["## Ablation (Table 2)", f"No training runs (summary.json) under {runs_dir}.", ""]
-    fig, axes = plt.subplots(1, 3, figsize=(15, 3.8))
+    fig, axes = plt.subplots(2, 3, figsize=(15, 7.6))
     lines = [
         "## Ablation (Table 2)",
         f"Runs under `{runs_dir}`; success out of 100 protocol starts at the end of training, mean over seeds.",
@@ -241,29 +270,43 @@ def runs_sections(runs_dir: Path, out: Path) -> list[str]:
         lines.append(
             f"| {variant} | {len(runs)} | {runs[0]['frames']:,} | {mean:.1f} | {100 - mean:.1f} | {best_mean:.1f} |"
         )
-        for key, ax, label in (
-            ("eval/success_rate", axes[0], "success rate"),
-            ("eval/position_error", axes[1], "position error (m)"),
-            ("eval/crash_rate", axes[2], "unsuccessful: crash rate"),
-        ):
-            curves = torch.tensor([[h.get(key, float("nan")) for h in r["history"]] for r in runs])
-            frames = torch.tensor([h["frames"] for h in runs[0]["history"]]) / 1e6
-            m = curves.nanmean(0)
-            ax.plot(frames, m, label=variant)
-            if len(runs) > 1:
-                ax.fill_between(frames, curves.min(0).values, curves.max(0).values, alpha=0.15)
-            ax.set_xlabel("frames (M)")
-            ax.set_ylabel(label)
-    axes[0].legend(fontsize=7)
-    for ax in axes:
+        frames = torch.tensor([h["frames"] for h in runs[0]["history"]], dtype=torch.float64) / 1e6
+        minutes = torch.tensor([h["wall_seconds"] for h in runs[0]["history"]], dtype=torch.float64) / 60
+        history = {
+            key: [torch.tensor([h.get(key, float("nan")) for h in r["history"]]) for r in runs]
+            for key in ("eval/success_rate", "eval/position_error", "eval/attitude_error")
+        }
+        _plot_band(axes[0, 0], frames, history["eval/success_rate"], variant)
+        _plot_band(axes[0, 1], minutes, history["eval/success_rate"], variant)
+        _plot_band(axes[1, 0], frames, history["eval/position_error"], variant)
+        _plot_band(axes[1, 1], frames, history["eval/attitude_error"], variant)
+        returns = [_tb_scalars(r["dir"], "train/episode_return") for r in runs]
+        steps = returns[0][0] / 1e6
+        _plot_band(axes[0, 2], steps, [v for _, v in returns], variant)
+        _plot_band(axes[1, 2], steps, [v.cumsum(0) for _, v in returns], variant)
+    labels = (
+        ("frames (M)", "success rate"),
+        ("wall-clock (min)", "success rate"),
+        ("frames (M)", "average episode return"),
+        ("frames (M)", "position error, last 2 s (m)"),
+        ("frames (M)", "tilt, last 2 s (deg)"),
+        ("frames (M)", "cumulative episode return"),
+    )
+    for ax, (xlabel, ylabel) in zip(axes.flat, labels, strict=True):
+        ax.set_xlabel(xlabel)
+        ax.set_ylabel(ylabel)
         ax.grid(alpha=0.3)
+    axes[1, 0].set_yscale("log")
+    axes[0, 0].legend(fontsize=7)
     fig.tight_layout()
     fig.savefig(out / "learning_curves.png", dpi=110)
     plt.close(fig)
     lines += [
         "",
         "## Learning curves (figs. 8-10)",
-        "Mean over seeds, band = min to max.",
+        "Mean over seeds, band = min to max; evaluations every `eval.interval_frames` (success, and the "
+        "position error and tilt over the last 2 s of the flights that did not crash), episode returns per "
+        "batch from TensorBoard (`train/episode_return`) and their running sum.",
         "",
         "![learning curves](learning_curves.png)",
         "",

@@ -151,3 +151,29 @@ def test_fly_rejects_bad_input(tmp_path):
         fly(bogus, protocol_starts(2))
     with pytest.raises(ValueError, match="starts must have shape"):
         fly(hover_controller(), torch.zeros(2, 11))
+
+
+def test_policy_files_fly_with_their_own_action_map(tmp_path):
+    """A file written before `action_map` existed flies with the speed map; the shipped one with thrust."""
+    from pathlib import Path
+
+    from bfc.envs import AirframeParams
+
+    shipped = Path(__file__).resolve().parents[2] / "pretrained" / "policy.pt"
+    payload = torch.load(shipped, weights_only=True)
+    assert payload["model"]["action_map"] == "thrust"
+    del payload["model"]["action_map"]
+    old = tmp_path / "old.pt"
+    torch.save(payload, old)
+    starts = protocol_starts(4, seed=3)
+    thrust = fly(shipped, starts, seconds=0.05).get(keys.ACTION)[:, 0].double()
+    speed = fly(old, starts, seconds=0.05).get(keys.ACTION)[:, 0].double()
+    hover = AirframeParams().hover_speed
+    # the same first action a, mapped two ways: (w_t / h)^2 - 1 = 2 a and w_s / h - 1 = a
+    # (where neither map clipped it to [0, 838] rad/s)
+    free = (thrust > 1) & (thrust < 837) & (speed > 1) & (speed < 837)
+    assert free.sum() >= 4
+    torch.testing.assert_close(
+        ((thrust / hover) ** 2 - 1)[free], (2 * (speed / hover - 1))[free], atol=1e-4, rtol=1e-4
+    )
+    assert not torch.allclose(thrust, speed)
