@@ -184,7 +184,6 @@ def validate(cfg) -> None:
         cfg.model.activation in ("tanh", "relu", "elu"), "model.activation", "tanh, relu or elu", cfg.model.activation
     )
     _check(cfg.model.init_std > 0, "model.init_std", "> 0", cfg.model.init_std)
-    _check(cfg.model.action_map in ("thrust", "speed"), "model.action_map", "thrust or speed", cfg.model.action_map)
     _check(cfg.noise.kind in ("none", "gaussian", "ou"), "noise.kind", "none, gaussian or ou", cfg.noise.kind)
     _check(cfg.eval.interval_frames > 0, "eval.interval_frames", "> 0", cfg.eval.interval_frames)
     _check(cfg.eval.num_starts >= 1, "eval.num_starts", ">= 1", cfg.eval.num_starts)

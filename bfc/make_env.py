@@ -143,11 +143,6 @@ class BFCEnv(TransformedEnv):
         return out
 
 
-def seed_env(env: TransformedEnv, seed: int) -> None:
-    """Seed the env and its transforms (kept for callers holding a plain TransformedEnv)."""
-    env.set_seed(seed)
-
-
 def find_transform(env: TransformedEnv, cls):
     """The first transform of type `cls` in the env's stack, or None."""
     for t in env.transform:

@@ -17,14 +17,15 @@ from torchrl.envs.utils import ExplorationType, set_exploration_type, step_mdp
 
 from bfc import keys
 from bfc.controllers import CONTROLLERS, Controller
+from bfc.make_env import find_transform, make_env
 from bfc.transforms import GivenStarts, MotorSpeedAction
 
 
 def _given_starts(env: TransformedEnv) -> GivenStarts:
-    for t in env.transform:
-        if isinstance(t, GivenStarts):
-            return t
-    raise ValueError("the env has no GivenStarts transform: build it with make_env(..., given_starts=True)")
+    starts = find_transform(env, GivenStarts)
+    if starts is None:
+        raise ValueError("the env has no GivenStarts transform: build it with make_env(..., given_starts=True)")
+    return starts
 
 
 @contextmanager
@@ -56,8 +57,8 @@ def run_flights(env: TransformedEnv, policy, starts: torch.Tensor, steps: int, g
     if isinstance(policy, Controller):  # forget the previous flight's integrators and warm start
         policy.reset()
     # A policy acts in its own [-1, 1] space: record every controller's command in rad/s.
-    action_map = next((t for t in env.transform if isinstance(t, MotorSpeedAction)), None)
-    to_rad_s = action_map._inv_apply_transform if action_map is not None else (lambda a: a)
+    action_map = find_transform(env, MotorSpeedAction)
+    to_rad_s = action_map.to_command if action_map is not None else (lambda a: a)
     td = env.reset()
     n = base.num_envs
     alive = torch.ones(n, dtype=torch.bool)
@@ -136,7 +137,6 @@ def fly(
     {"kind": "ou", "std": 0.05, "elements": "position"}; it corrupts only what the controller sees.
     Returns a TensorDict (n, T); see `run_flights`.
     """
-    from bfc.make_env import make_env, seed_env
     from bfc.policy import load_policy
 
     starts = torch.as_tensor(starts, dtype=torch.float32)
@@ -169,7 +169,7 @@ def fly(
     cfg.env.episode_seconds = seconds + 1.0
     n = starts.shape[0]
     env = make_env(cfg, num_envs=n, samplers=False, given_starts=True, policy_io=policy_io)
-    seed_env(env, seed)
+    env.set_seed(seed)
     if name is not None:
         controller = CONTROLLERS[name](env.base_env.airframe, env.base_env.dt)
     first, schedule = _goal_schedule(goal, env.base_env.dt)

@@ -18,6 +18,7 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import torch  # noqa: E402
+from tensordict import TensorDict  # noqa: E402
 
 from bfc.controllers import CONTROLLERS  # noqa: E402
 from bfc.envs.rotations import euler_to_quat  # noqa: E402
@@ -55,7 +56,9 @@ def _fmt(v, digits=3):
     return "n/a" if v is None else f"{v:.{digits}f}"
 
 
-def policy_sections(controller, out: Path, num_starts: int = 100, seed: int = 0) -> list[str]:
+def policy_sections(controller, out: Path, num_starts: int = 100, seed: int = 0) -> tuple[list[str], TensorDict]:
+    """The protocol, accuracy, noise and waypoint sections, and the protocol flights (reused by the
+    controller comparison)."""
     starts = protocol_starts(num_starts, seed)
     lines = []
     flights = fly(controller, starts, seconds=10.0, seed=seed)
@@ -120,7 +123,7 @@ def policy_sections(controller, out: Path, num_starts: int = 100, seed: int = 0)
         wf = fly(controller, level, seconds=seconds, goal=course, seed=seed)
         plot_flights(wf, out / fname, f"waypoints: {label}", frame_every=25)
         lines += [f"## Waypoints (fig. 22): {label}", "", f"![{label}]({fname})", ""]
-    return lines
+    return lines, flights
 
 
 TILT_BINS = (0, 15, 30, 45, 60, 75, 90)  # degrees of initial tilt (roll and pitch up to 60 give up to 75.5)
@@ -131,7 +134,9 @@ def start_tilt_degrees(starts: torch.Tensor) -> torch.Tensor:
     return tilt_degrees(euler_to_quat(starts[:, 3:6].double()))
 
 
-def controller_sections(controllers: dict, out: Path, num_starts: int = 100, seed: int = 0) -> list[str]:
+def controller_sections(
+    controllers: dict, out: Path, num_starts: int = 100, seed: int = 0, flown: dict | None = None
+) -> list[str]:
     """BFC against the classical baselines on the same starts (paper figs. 19-21): success, success
     by initial tilt, time to success, errors after success and compute time per control step."""
     starts = protocol_starts(num_starts, seed)
@@ -140,7 +145,9 @@ def controller_sections(controllers: dict, out: Path, num_starts: int = 100, see
     bins = [b for b in bins if bool(b[2].any())]
     table, by_tilt = [], {}
     for label, controller in controllers.items():
-        flights = fly(controller, starts, seconds=10.0, seed=seed)
+        flights = (flown or {}).get(label)  # flights already flown on these starts, by label
+        if flights is None:
+            flights = fly(controller, starts, seconds=10.0, seed=seed)
         s = summarize(flights)
         ok = torch.tensor([r["success"] for r in s["per_start"]])
         by_tilt[label] = [ok[mask].float().mean().item() for _, _, mask in bins]
@@ -324,11 +331,12 @@ def write_report(
     out.mkdir(parents=True, exist_ok=True)
     lines = ["# bfc evaluation report", "", header, ""]
     if controller is not None:
-        lines += policy_sections(controller, out, num_starts, seed)
+        policy_lines, flights = policy_sections(controller, out, num_starts, seed)
+        lines += policy_lines
         label = "bfc" if str(controller) not in CONTROLLERS else str(controller)
         others = {b: b for b in baselines if b != label}
         if others:
-            lines += controller_sections({label: controller, **others}, out, num_starts, seed)
+            lines += controller_sections({label: controller, **others}, out, num_starts, seed, {label: flights})
     if runs_dir is not None:
         lines += runs_sections(Path(runs_dir), out)
     path = out / "report.md"

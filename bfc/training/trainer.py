@@ -27,7 +27,7 @@ from bfc.collectors import carrier_state, episode_stats, make_collector, restore
 from bfc.evaluation.fly import run_flights
 from bfc.evaluation.metrics import tilt_degrees
 from bfc.evaluation.protocol import inside_box, protocol_starts, success_and_time
-from bfc.make_env import find_transform, make_env, seed_env
+from bfc.make_env import find_transform, make_env
 from bfc.policy import atomic_save, save_policy
 from bfc.training.ppo import make_loss, make_models, ppo_update
 from bfc.transforms import ControlledStartingState, JumpingDistribution, PolicyObservation
@@ -44,7 +44,7 @@ class ProtocolEvaluator:
         e = cfg.eval
         eval_cfg = OmegaConf.merge(cfg, {"env": {"episode_seconds": e.seconds + 1.0}})
         self.env = make_env(eval_cfg, num_envs=e.num_starts, samplers=False, noise={"kind": "none"}, given_starts=True)
-        seed_env(self.env, e.seed)
+        self.env.set_seed(e.seed)
         self.starts = protocol_starts(e.num_starts, e.seed)
         dt = self.env.base_env.dt
         self.steps = round(e.seconds / dt)

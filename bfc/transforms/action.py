@@ -30,6 +30,10 @@ class MotorSpeedAction(Transform):
         self.hover_speed, self.max_speed, self.action_map = float(hover_speed), float(max_speed), action_map
 
     def _inv_apply_transform(self, action: torch.Tensor) -> torch.Tensor:
+        return self.to_command(action)
+
+    def to_command(self, action: torch.Tensor) -> torch.Tensor:
+        """The policy's action -> motor speed commands (rad/s)."""
         if self.action_map == "thrust":
             return self.hover_speed * (1.0 + 2.0 * action).clamp(0.0, (self.max_speed / self.hover_speed) ** 2).sqrt()
         return (self.hover_speed * (1.0 + action)).clamp(0.0, self.max_speed)
