@@ -252,9 +252,7 @@ class LinearMPC(Controller):
             thrust = ((u[:, 2] + g) / (roll.cos() * pitch.cos()).clamp_min(1e-3)).clamp_max(self.max_thrust)
             ux, uy = u[:, 1] * g / thrust, u[:, 0] * g / thrust  # back to the body's yaw frame
             yaw_error = torch.zeros_like(yaw) if p.yaw is None else _wrap(p.yaw - yaw)
-            yaw_rate = (p.k_yaw * yaw_error).clamp(
-                -math.radians(p.yaw_rate_max_deg), math.radians(p.yaw_rate_max_deg)
-            )
+            yaw_rate = (p.k_yaw * yaw_error).clamp(-math.radians(p.yaw_rate_max_deg), math.radians(p.yaw_rate_max_deg))
             self._held = torch.stack((ux * sy + uy * cy, ux * cy - uy * sy, yaw_rate, thrust), -1)
         self._count += 1
         return self._attitude_loop(odo, self._held)

@@ -26,7 +26,6 @@ from torchrl.envs import EnvBase
 
 from bfc import keys
 from bfc.envs.params import ROTOR_DIRECTIONS, ROTOR_YAW_SIGNS, AirframeParams
-from bfc.envs.rotations import euler_to_quat
 
 # Layout of MuJoCo's mjSTATE_FULLPHYSICS vector for this model: time, qpos (3 + 4), qvel (3 + 3).
 _POS, _QUAT, _LINVEL, _ANGVEL = slice(1, 4), slice(4, 8), slice(8, 11), slice(11, 14)
@@ -99,17 +98,12 @@ class StartParams:
         _check(0 <= self.yaw_range_deg <= 180, "env.start.yaw_range_deg", "in [0, 180]", self.yaw_range_deg)
 
 
-def _rotate_to_body_np(q: np.ndarray, v: np.ndarray) -> np.ndarray:
-    """Rotate world vectors v (N, 3) into the body frames of quaternions q (N, 4): R(q)^T v."""
-    w, x, y, z = q.T
-    vx, vy, vz = v.T
+def _body_xy_velocity(phys: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Body-frame x and y of the linear velocity, R(q)^T v, for physics states (N, 14)."""
+    w, x, y, z, vx, vy, vz = phys[:, 4:11].T
     # t = 2 (u x v) with u = -(x, y, z), the conjugate's vector part; result v + w t + u x t.
     tx, ty, tz = 2 * (z * vy - y * vz), 2 * (x * vz - z * vx), 2 * (y * vx - x * vy)
-    out = np.empty_like(v)
-    out[:, 0] = vx + w * tx + (z * ty - y * tz)
-    out[:, 1] = vy + w * ty + (x * tz - z * tx)
-    out[:, 2] = vz + w * tz + (y * tx - x * ty)
-    return out
+    return vx + w * tx + (z * ty - y * tz), vy + w * ty + (x * tz - z * tx)
 
 
 def _as(cls, value):
@@ -212,7 +206,8 @@ class QuadrotorEnv(EnvBase):
         self._nstate = mujoco.mj_stateSize(self.model, mujoco.mjtState.mjSTATE_FULLPHYSICS)
         assert self._nstate == 14, "asset layout changed: update the state slices"
 
-        # Per-env state (float64, as MuJoCo integrates).
+        # Per-env state (float64, as MuJoCo integrates). The hot path works on NumPy views (`*_np`)
+        # of these tensors: a NumPy op on a (N,) column costs a third of a torch op.
         n, f64 = num_envs, torch.float64
         self._physics = torch.zeros(n, self._nstate, dtype=f64)
         self._physics_np = self._physics.numpy()
@@ -221,12 +216,20 @@ class QuadrotorEnv(EnvBase):
         self._ctrl_np = self._ctrl.numpy()
         self._obs_np = np.zeros((n, 30))  # staging buffer for the outputs (see _observe)
         self._motor = torch.zeros(n, 4, dtype=f64)
+        self._motor_np = self._motor.numpy()
         self._lin_acc = torch.zeros(n, 3, dtype=f64)
+        self._lin_acc_np = self._lin_acc.numpy()
         self._ang_acc = torch.zeros(n, 3, dtype=f64)
+        self._ang_acc_np = self._ang_acc.numpy()
         self._steps = torch.zeros(n, dtype=torch.long)
+        self._steps_np = self._steps.numpy()
         self._goal = torch.tensor(goal, dtype=torch.float32).expand(n, 3).clone()
-        # Midpoints of the substeps, for the closed-form motor lag.
-        self._sub_mid_np = ((np.arange(substeps) + 0.5) * physics_dt).reshape(1, substeps, 1)
+        # Closed-form motor lag: the decay exp(-t / tau) at each substep's midpoint (for the thrust
+        # of that substep) and at the end of the step, for speeding up and for slowing down.
+        mid = ((np.arange(substeps) + 0.5) * physics_dt).reshape(1, substeps, 1)
+        up, down = self.airframe.time_constant_up, self.airframe.time_constant_down
+        self._decay_sub = (np.exp(-mid / up), np.exp(-mid / down))
+        self._decay_step = (np.exp(-np.array(self.dt) / up), np.exp(-np.array(self.dt) / down))
         self._cos_ground_tilt = math.cos(math.radians(self.termination.ground_tilt_deg))
         self._generator = torch.Generator()
         self._generator.manual_seed(0 if seed is None else seed)
@@ -271,13 +274,13 @@ class QuadrotorEnv(EnvBase):
         """(n, 12) starts from the task distribution D: on the floor, level, at rest."""
         n = self.num_envs if n is None else n
         g = self._generator
-        start = torch.zeros(n, 12, dtype=torch.float64)
-        r = self.start_params.xy_range
-        start[:, 0:2] = (torch.rand(n, 2, generator=g, dtype=torch.float64) * 2 - 1) * r
+        xy = torch.rand(n, 2, generator=g, dtype=torch.float64).numpy()
+        yaw = torch.rand(n, generator=g, dtype=torch.float64).numpy()
+        start = np.zeros((n, 12))
+        start[:, 0:2] = (xy * 2 - 1) * self.start_params.xy_range
         start[:, 2] = self.ground_height
-        yaw = math.radians(self.start_params.yaw_range_deg)
-        start[:, 5] = (torch.rand(n, generator=g, dtype=torch.float64) * 2 - 1) * yaw
-        return start
+        start[:, 5] = (yaw * 2 - 1) * math.radians(self.start_params.yaw_range_deg)
+        return torch.from_numpy(start)
 
     # ----------------------------------------------------------------- TorchRL hooks
     def _set_seed(self, seed: int | None) -> None:
@@ -289,7 +292,7 @@ class QuadrotorEnv(EnvBase):
         given = None
         if tensordict is not None:
             if keys.RESET in tensordict.keys():
-                mask = tensordict.get(keys.RESET).reshape(n).clone()
+                mask = tensordict.get(keys.RESET).reshape(n).to(torch.bool)
             given = tensordict.get(keys.START_STATE, None)
         start = self.sample_default_starts()
         if given is not None:
@@ -301,25 +304,42 @@ class QuadrotorEnv(EnvBase):
         return self._observe(self._physics, reward=None, terminated=None, truncated=None)
 
     def _place(self, start: torch.Tensor, mask: torch.Tensor) -> None:
-        """Write starts into the masked envs' physics state.
+        """Write starts (N, 12) into the envs selected by the boolean `mask` (N,).
 
         Motors start at rest, or with `start_motors="hover"` at hover speed when the start is in
         the air (a drone perturbed in flight rather than dropped).
         """
-        phys = self._physics.clone()
-        phys[:, _POS] = start[:, 0:3]
-        phys[:, _QUAT] = euler_to_quat(start[:, 3:6])
-        phys[:, _LINVEL] = start[:, 6:9]
-        phys[:, _ANGVEL] = start[:, 9:12]
-        m = mask.unsqueeze(-1)
-        self._physics[:] = torch.where(m, phys, self._physics)
+        m = mask.numpy()
+        if not m.any():
+            return
+        start = start.to(torch.float64)
+        s = start.numpy()[m]
+        # Same arithmetic as rotations.euler_to_quat (so the same bits); sin and cos of the whole
+        # batch, so that an env's start does not depend on which other envs are placed with it
+        # (vectorised and scalar sin/cos can differ in the last bit).
+        half = start[:, 3:6] * 0.5
+        cr, cp, cy = half.cos().numpy()[m].T
+        sr, sp, sy = half.sin().numpy()[m].T
+        quat = np.stack(
+            (
+                cr * cp * cy + sr * sp * sy,
+                sr * cp * cy - cr * sp * sy,
+                cr * sp * cy + sr * cp * sy,
+                cr * cp * sy - sr * sp * cy,
+            ),
+            -1,
+        )
+        phys = self._physics_np
+        phys[m, 1:4] = s[:, 0:3]
+        phys[m, 4:8] = quat
+        phys[m, 8:14] = s[:, 6:12]
         spin = 0.0
         if self.start_motors == "hover":
-            spin = torch.where(start[:, 2:3] > self.ground_height + 0.01, self.hover_speed, 0.0)
-        self._motor[:] = torch.where(m, spin, self._motor)  # in place: NumPy views alias these
-        self._lin_acc[:] = torch.where(m, 0.0, self._lin_acc)
-        self._ang_acc[:] = torch.where(m, 0.0, self._ang_acc)
-        self._steps[:] = torch.where(mask, 0, self._steps)
+            spin = np.where(s[:, 2:3] > self.ground_height + 0.01, self.hover_speed, 0.0)
+        self._motor_np[m] = spin
+        self._lin_acc_np[m] = 0.0
+        self._ang_acc_np[m] = 0.0
+        self._steps_np[m] = 0
 
     def _step(self, tensordict: TensorDictBase) -> TensorDictBase:
         action = tensordict.get(keys.ACTION)
@@ -327,8 +347,9 @@ class QuadrotorEnv(EnvBase):
             raise ValueError(
                 f"action must have shape ({self.num_envs}, 4) (motor speeds in rad/s), got {tuple(action.shape)}"
             )
-        # The hot path is NumPy float64 on views of the state tensors: a NumPy op on (N, 4)
-        # costs about a third of a torch op, and MuJoCo integrates in float64 anyway.
+        # The hot path is NumPy float64 on views of the state tensors, one (N,) column at a time:
+        # MuJoCo integrates in float64 anyway, and a reduction over a short last axis (`.sum(-1)`)
+        # costs as much as fifteen column operations.
         cmd = action.detach().numpy().astype(np.float64)
         if not np.isfinite(cmd).all():
             bad = np.flatnonzero(~np.isfinite(cmd).all(-1))[:8].tolist()
@@ -337,38 +358,48 @@ class QuadrotorEnv(EnvBase):
             )
         a = self.airframe
         np.clip(cmd, 0.0, a.max_rotor_speed, out=cmd)
-        w0 = self._motor.numpy()
-        tau = np.where(cmd >= w0, a.time_constant_up, a.time_constant_down)
-        # Closed-form first-order lag at each substep's midpoint -> thrust per substep.
-        w_sub = cmd[:, None] + (w0 - cmd)[:, None] * np.exp(-self._sub_mid_np / tau[:, None])
-        old = self._physics_np.copy()
-        v_body = _rotate_to_body_np(old[:, _QUAT], old[:, _LINVEL])
-        spin = np.abs(w0).sum(-1, keepdims=True)
+        w0 = self._motor_np
+        up = cmd >= w0
+        lag = w0 - cmd
+        thrust = np.where(up[:, None], *self._decay_sub)  # (N, substeps, 4): lag decay, then speed, then thrust
+        thrust *= lag[:, None]
+        thrust += cmd[:, None]
         ctrl = self._ctrl_np
-        ctrl[:, :, 0:4] = a.motor_constant * w_sub * w_sub
-        ctrl[:, :, 4:6] = (-a.rotor_drag_coefficient * spin * v_body[:, 0:2])[:, None]
-        ctrl[:, :, 6:8] = (-a.rolling_moment_coefficient * spin * v_body[:, 0:2])[:, None]
+        np.multiply(a.motor_constant * thrust, thrust, out=ctrl[:, :, 0:4])
+        old = self._physics_np.copy()
+        vx, vy = _body_xy_velocity(old)
+        spin = w0[:, 0] + w0[:, 1] + w0[:, 2] + w0[:, 3]  # motor speeds are never negative
+        drag, rolling = -a.rotor_drag_coefficient * spin, -a.rolling_moment_coefficient * spin
+        ctrl[:, :, 4] = (drag * vx)[:, None]
+        ctrl[:, :, 5] = (drag * vy)[:, None]
+        ctrl[:, :, 6] = (rolling * vx)[:, None]
+        ctrl[:, :, 7] = (rolling * vy)[:, None]
         self._integrate()
-        w0[:] = cmd + (w0 - cmd) * np.exp(-self.dt / tau)
+        w0[:] = cmd + lag * np.where(up, *self._decay_step)
         new = self._physics_np
         new[:] = self._out[:, -1]
 
         # Physics failures: terminate that env and put it somewhere finite; never crash the batch.
         # MuJoCo resets a diverged mjData itself (time restarts at 0), so a clock that did not
         # advance is a failure too.
-        failed = ~np.isfinite(new).all(-1) | (new[:, 0] < old[:, 0] + self.dt - 0.5 * self.physics_dt)
-        if failed.any():
+        late = new[:, 0] < old[:, 0] + self.dt - 0.5 * self.physics_dt
+        failed = None
+        if not np.isfinite(new).all() or late.any():
+            failed = ~np.isfinite(new).all(-1) | late
             self.physics_failures += int(failed.sum())
             self._place(self.sample_default_starts(), torch.from_numpy(failed))
-        keep = ~failed[:, None]
-        self._lin_acc.numpy()[:] = np.where(keep, (new[:, _LINVEL] - old[:, _LINVEL]) / self.dt, 0.0)
-        self._ang_acc.numpy()[:] = np.where(keep, (new[:, _ANGVEL] - old[:, _ANGVEL]) / self.dt, 0.0)
-        self._steps += 1
+        self._lin_acc_np[:] = (new[:, _LINVEL] - old[:, _LINVEL]) / self.dt
+        self._ang_acc_np[:] = (new[:, _ANGVEL] - old[:, _ANGVEL]) / self.dt
+        if failed is not None:
+            self._lin_acc_np[failed] = 0.0
+            self._ang_acc_np[failed] = 0.0
+        self._steps_np += 1
 
         reward, crashed = self._reward_and_crash(new, cmd, old[:, 10])
-        terminated = torch.from_numpy(crashed | failed)
-        truncated = (self._steps >= self.max_episode_steps) & ~terminated
-        return self._observe(new, reward, terminated, truncated)
+        if failed is not None:
+            crashed |= failed
+        truncated = (self._steps_np >= self.max_episode_steps) & ~crashed
+        return self._observe(new, reward, torch.from_numpy(crashed), torch.from_numpy(truncated))
 
     def _integrate(self) -> None:
         self._rollout.rollout(
@@ -384,31 +415,31 @@ class QuadrotorEnv(EnvBase):
     def _reward_and_crash(self, phys: np.ndarray, cmd: np.ndarray, prev_vz: np.ndarray):
         """Shaped reward (see RewardParams) and the crash flag (see TerminationParams)."""
         rp, tp = self.reward_params, self.termination
-        pos = phys[:, _POS]
-        w, x, y, z = phys[:, _QUAT].T
-        dist = np.sqrt(np.square(pos - self._goal.numpy()).sum(-1))
+        px, py, pz, w, x, y, z, vx, vy, vz, wx, wy, wz = phys[:, 1:14].T
+        g = self._goal.numpy()
+        dx, dy, dz = px - g[:, 0], py - g[:, 1], pz - g[:, 2]
+        dist = np.sqrt(dx * dx + dy * dy + dz * dz)
         cos_tilt = 1 - 2 * (x * x + y * y)  # world-z component of the body z axis
-        cos_yaw = np.cos(np.arctan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z)))
         act = (cmd - self.hover_speed) / self.hover_speed
+        act *= act
         penalty = (
             rp.position * dist
             + rp.tilt * (1 - cos_tilt)
-            + rp.yaw * (1 - cos_yaw)
-            + rp.velocity * np.square(phys[:, _LINVEL]).sum(-1)
-            + rp.angular_velocity * np.square(phys[:, _ANGVEL]).sum(-1)
-            + rp.yaw_rate * np.square(phys[:, 13])
-            + rp.action * np.square(act).sum(-1)
+            + rp.velocity * (vx * vx + vy * vy + vz * vz)
+            + rp.angular_velocity * (wx * wx + wy * wy + wz * wz)
+            + rp.yaw_rate * (wz * wz)
+            + rp.action * (act[:, 0] + act[:, 1] + act[:, 2] + act[:, 3])
         )
+        if rp.yaw:
+            penalty += rp.yaw * (1 - np.cos(np.arctan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))))
         r = rp.alive * np.exp(-penalty / rp.alive) + rp.precision * np.exp(-np.square(dist / rp.precision_radius))
         # Lowest point of the collision box: is the drone touching the floor?
         hx, hy, hz = HULL_HALF_SIZE
-        lowest = pos[:, 2] - (
-            hx * np.abs(2 * (x * z - w * y)) + hy * np.abs(2 * (y * z + w * x)) + hz * np.abs(cos_tilt)
-        )
+        lowest = pz - (hx * np.abs(2 * (x * z - w * y)) + hy * np.abs(2 * (y * z + w * x)) + hz * np.abs(cos_tilt))
         touching = lowest < 0.005
         tipped = cos_tilt < self._cos_ground_tilt
         hard = prev_vz < -tp.crash_speed
-        outside = (np.abs(pos[:, 0:2]) > tp.box_xy).any(-1) | (pos[:, 2] > tp.box_z)
+        outside = (np.abs(px) > tp.box_xy) | (np.abs(py) > tp.box_xy) | (pz > tp.box_z)
         crashed = (touching & (tipped | hard)) | outside
         r = np.where(crashed, r - rp.crash_penalty, r) * rp.scale
         return r, crashed
@@ -420,14 +451,14 @@ class QuadrotorEnv(EnvBase):
         w, x, y, z = p[:, _QUAT].T
         buf[:, 0:3] = p[:, _POS]
         buf[:, 3:6] = p[:, _LINVEL]
-        buf[:, 6:9] = self._lin_acc.numpy()
+        buf[:, 6:9] = self._lin_acc_np
         buf[:, 9] = np.arctan2(2 * (w * x + y * z), 1 - 2 * (x * x + y * y))
         buf[:, 10] = np.arcsin(np.clip(2 * (w * y - z * x), -1.0, 1.0))
         buf[:, 11] = np.arctan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))
         buf[:, 12:15] = p[:, _ANGVEL]
-        buf[:, 15:18] = self._ang_acc.numpy()
+        buf[:, 15:18] = self._ang_acc_np
         buf[:, 18:22] = p[:, _QUAT]
-        buf[:, 22:26] = self._motor.numpy()
+        buf[:, 22:26] = self._motor_np
         buf[:, 26:29] = self._goal.numpy()
         if reward is None:
             terminated = truncated = torch.zeros(n, dtype=torch.bool)
@@ -451,7 +482,7 @@ class QuadrotorEnv(EnvBase):
         }
         if reward is not None:
             out[keys.REWARD] = flat[:, 29:30]
-        return TensorDict(out, batch_size=self.batch_size)
+        return TensorDict(out, batch_size=self.batch_size, device=self.device)
 
     def close(self, *, raise_if_closed: bool = True) -> None:
         if self._rollout is not None:

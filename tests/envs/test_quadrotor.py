@@ -101,6 +101,59 @@ def test_motor_lag_reaches_63_percent_after_time_constant():
     assert td[keys.MOTOR_SPEEDS][0] == pytest.approx(torch.full((4,), 600 - 400 * (1 - math.exp(-1))), rel=1e-4)
 
 
+@pytest.mark.parametrize("yaw_weight", [0.0, 0.1])
+def test_reward_follows_the_documented_formula(yaw_weight):
+    """The batched NumPy reward equals RewardParams' formula written out in torch."""
+    n = 32
+    env = QuadrotorEnv(n, start_motors="hover", reward={"yaw": yaw_weight}, seed=0)
+    g = torch.Generator().manual_seed(4)
+    start = air_start(n, z=1.0)
+    start[:, 0:2] = torch.rand(n, 2, generator=g) * 2 - 1
+    start[:, 3:6] = (torch.rand(n, 3, generator=g) - 0.5) * torch.tensor([1.0, 1.0, 6.0])
+    start[:, 6:12] = torch.randn(n, 6, generator=g) * 0.5
+    td = reset_to(env, start)
+    action = env.hover_speed * (0.8 + 0.4 * torch.rand(n, 4, generator=g))
+    out = env.step(td.set(keys.ACTION, action))["next"]
+    rp, h = env.reward_params, env.hover_speed
+    q = out[keys.QUATERNION].double()
+    dist = (out[keys.POSITION].double() - torch.tensor([0.0, 0.0, 1.5], dtype=torch.float64)).norm(dim=-1)
+    w = out[keys.ANGULAR_VELOCITY].double()
+    penalty = (
+        rp.position * dist
+        + rp.tilt * (1 - quat_to_matrix(q)[:, 2, 2])
+        + rp.yaw * (1 - quat_to_euler(q)[:, 2].cos())
+        + rp.velocity * out[keys.LINEAR_VELOCITY].double().square().sum(-1)
+        + rp.angular_velocity * w.square().sum(-1)
+        + rp.yaw_rate * w[:, 2].square()
+        + rp.action * ((action.double() - h) / h).square().sum(-1)
+    )
+    expected = rp.scale * (
+        rp.alive * (-penalty / rp.alive).exp() + rp.precision * (-((dist / rp.precision_radius) ** 2)).exp()
+    )
+    assert not out[keys.TERMINATED].any()
+    torch.testing.assert_close(out["reward"].squeeze(-1).double(), expected, rtol=1e-4, atol=1e-7)
+
+
+@pytest.mark.parametrize("yaw", [0.0, math.pi / 2, 2.5])
+def test_rotor_drag_opposes_the_velocity_whatever_the_heading(yaw):
+    """Drag is computed in the body frame and applied there: in the world it must oppose v."""
+    drag = QuadrotorEnv(1, start_motors="hover")
+    free = QuadrotorEnv(
+        1, start_motors="hover", airframe={"rotor_drag_coefficient": 0.0, "rolling_moment_coefficient": 0.0}
+    )
+    start = air_start(1, yaw=yaw, vx=2.0, vy=-1.0)
+    steps = 25  # 0.1 s: short enough that the rolling moment has not tilted the thrust noticeably
+    v, v_free = (
+        fly(e, reset_to(e, start), torch.full((4,), e.hover_speed), steps)[keys.LINEAR_VELOCITY][0]
+        for e in (drag, free)
+    )
+    dv, v0 = (v - v_free)[:2].double(), torch.tensor([2.0, -1.0], dtype=torch.float64)
+    assert float(dv @ -v0) / (float(dv.norm()) * float(v0.norm())) > 0.99
+    a = drag.airframe
+    expected = a.rotor_drag_coefficient * 4 * drag.hover_speed * float(v0.norm()) / a.total_mass * steps * drag.dt
+    assert float(dv.norm()) == pytest.approx(expected, rel=0.1)
+
+
 def test_reset_to_given_start_is_exact():
     env = QuadrotorEnv(4, seed=0)
     g = torch.Generator().manual_seed(3)

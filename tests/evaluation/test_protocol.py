@@ -173,7 +173,5 @@ def test_policy_files_fly_with_their_own_action_map(tmp_path):
     # (where neither map clipped it to [0, 838] rad/s)
     free = (thrust > 1) & (thrust < 837) & (speed > 1) & (speed < 837)
     assert free.sum() >= 4
-    torch.testing.assert_close(
-        ((thrust / hover) ** 2 - 1)[free], (2 * (speed / hover - 1))[free], atol=1e-4, rtol=1e-4
-    )
+    torch.testing.assert_close(((thrust / hover) ** 2 - 1)[free], (2 * (speed / hover - 1))[free], atol=1e-4, rtol=1e-4)
     assert not torch.allclose(thrust, speed)

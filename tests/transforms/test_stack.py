@@ -1,4 +1,5 @@
 """The full transform stack on the env: specs, partial resets, seeding, policy observation."""
+
 import pytest
 import torch
 from torchrl.envs.utils import check_env_specs
