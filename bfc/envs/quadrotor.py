@@ -422,16 +422,14 @@ class QuadrotorEnv(EnvBase):
         cos_tilt = 1 - 2 * (x * x + y * y)  # world-z component of the body z axis
         act = (cmd - self.hover_speed) / self.hover_speed
         act *= act
-        penalty = (
-            rp.position * dist
-            + rp.tilt * (1 - cos_tilt)
-            + rp.velocity * (vx * vx + vy * vy + vz * vz)
-            + rp.angular_velocity * (wx * wx + wy * wy + wz * wz)
-            + rp.yaw_rate * (wz * wz)
-            + rp.action * (act[:, 0] + act[:, 1] + act[:, 2] + act[:, 3])
-        )
-        if rp.yaw:
+        penalty = rp.position * dist + rp.tilt * (1 - cos_tilt)
+        if rp.yaw:  # free by default: skip the trigonometry
             penalty += rp.yaw * (1 - np.cos(np.arctan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))))
+        # one term at a time: the sum keeps the order of RewardParams (and so its last bits)
+        penalty += rp.velocity * (vx * vx + vy * vy + vz * vz)
+        penalty += rp.angular_velocity * (wx * wx + wy * wy + wz * wz)
+        penalty += rp.yaw_rate * (wz * wz)
+        penalty += rp.action * (act[:, 0] + act[:, 1] + act[:, 2] + act[:, 3])
         r = rp.alive * np.exp(-penalty / rp.alive) + rp.precision * np.exp(-np.square(dist / rp.precision_radius))
         # Lowest point of the collision box: is the drone touching the floor?
         hx, hy, hz = HULL_HALF_SIZE
