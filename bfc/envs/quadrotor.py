@@ -26,6 +26,7 @@ from torchrl.envs import EnvBase
 
 from bfc import keys
 from bfc.envs.params import ROTOR_DIRECTIONS, ROTOR_YAW_SIGNS, AirframeParams
+from bfc.envs.rotations import euler_to_quat
 
 # Layout of MuJoCo's mjSTATE_FULLPHYSICS vector for this model: time, qpos (3 + 4), qvel (3 + 3).
 _POS, _QUAT, _LINVEL, _ANGVEL = slice(1, 4), slice(4, 8), slice(8, 11), slice(11, 14)
@@ -229,6 +230,7 @@ class QuadrotorEnv(EnvBase):
         mid = ((np.arange(substeps) + 0.5) * physics_dt).reshape(1, substeps, 1)
         up, down = self.airframe.time_constant_up, self.airframe.time_constant_down
         self._decay_sub = (np.exp(-mid / up), np.exp(-mid / down))
+        # (NumPy's exp on arrays, as the step computed it before: the same bits)
         self._decay_step = (np.exp(-np.array(self.dt) / up), np.exp(-np.array(self.dt) / down))
         self._cos_ground_tilt = math.cos(math.radians(self.termination.ground_tilt_deg))
         self._generator = torch.Generator()
@@ -314,21 +316,9 @@ class QuadrotorEnv(EnvBase):
             return
         start = start.to(torch.float64)
         s = start.numpy()[m]
-        # Same arithmetic as rotations.euler_to_quat (so the same bits); sin and cos of the whole
-        # batch, so that an env's start does not depend on which other envs are placed with it
-        # (vectorised and scalar sin/cos can differ in the last bit).
-        half = start[:, 3:6] * 0.5
-        cr, cp, cy = half.cos().numpy()[m].T
-        sr, sp, sy = half.sin().numpy()[m].T
-        quat = np.stack(
-            (
-                cr * cp * cy + sr * sp * sy,
-                sr * cp * cy - cr * sp * sy,
-                cr * sp * cy + sr * cp * sy,
-                cr * cp * sy - sr * sp * cy,
-            ),
-            -1,
-        )
+        # The quaternions of the whole batch, so that an env's start does not depend on which
+        # other envs are placed with it (vectorised and scalar sin/cos can differ in the last bit).
+        quat = euler_to_quat(start[:, 3:6]).numpy()[m]
         phys = self._physics_np
         phys[m, 1:4] = s[:, 0:3]
         phys[m, 4:8] = quat
