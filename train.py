@@ -4,6 +4,9 @@ python train.py                                  # the full BFC (JD-CSS-TDTS), d
 python train.py +ablation=jd_tdts seed=1         # one ablation variant
 python train.py -m +ablation=ppo,jd,jd_css_tdts seed=0,1,2   # a sweep
 python train.py resume=outputs/2026-11-22/10-00-00           # continue a killed run
+
+Bad input (an unknown key, a value out of range, a run directory with nothing to resume) ends
+with a one-line `error: ...` on stderr and exit status 2.
 """
 
 import sys
@@ -13,24 +16,28 @@ import hydra
 from hydra.core.hydra_config import HydraConfig
 from omegaconf import OmegaConf
 
-from bfc.config import register, validate
+from bfc.config import validate  # importing bfc.config registers the schema Hydra composes with
 from bfc.training import train
 
-register()
+
+def resume_config(cfg):
+    """The config a killed run started with (it goes on with that), and its directory."""
+    run_dir = Path(cfg.resume)
+    if not any((run_dir / "checkpoints" / name).is_file() for name in ("last.pt", "previous.pt")):
+        raise FileNotFoundError(f"resume={cfg.resume}: no checkpoints/last.pt there to resume from")
+    if not (run_dir / "config.yaml").is_file():
+        raise FileNotFoundError(f"resume={cfg.resume}: no config.yaml there (not a bfc run directory)")
+    saved = OmegaConf.load(run_dir / "config.yaml")
+    if "action_map" not in saved.get("model", {}):  # runs started before the thrust map existed
+        saved.model.action_map = "speed"
+    return OmegaConf.merge(cfg, saved, {"resume": str(run_dir)}), run_dir
 
 
 @hydra.main(config_path="conf", config_name="config", version_base="1.3")
 def main(cfg) -> float:
     try:
         if cfg.resume:
-            run_dir = Path(cfg.resume)
-            if not (run_dir / "checkpoints" / "last.pt").is_file():
-                raise FileNotFoundError(f"resume={cfg.resume}: no checkpoints/last.pt there to resume from")
-            # The run goes on with the config it started with.
-            saved = OmegaConf.load(run_dir / "config.yaml")
-            if "action_map" not in saved.get("model", {}):  # runs started before the thrust map existed
-                saved.model.action_map = "speed"
-            cfg = OmegaConf.merge(cfg, saved, {"resume": str(run_dir)})
+            cfg, run_dir = resume_config(cfg)
         else:
             run_dir = Path(HydraConfig.get().runtime.output_dir)
         validate(cfg)

@@ -20,7 +20,7 @@ import torch
 
 from bfc.controllers import LeeController, LeeGains, LinearMPC, MPCParams
 from bfc.envs import AirframeParams
-from bfc.evaluation.fly import PROTOCOL_HZ
+from bfc.evaluation.flights import PROTOCOL_HZ
 from bfc.evaluation.report import controller_sections
 
 ROOT = Path(__file__).resolve().parents[1]

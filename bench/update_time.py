@@ -13,7 +13,7 @@ import torch
 from omegaconf import OmegaConf
 
 from bfc.config import Config
-from bfc.make_env import find_transform, make_env
+from bfc.factory import find_transform, make_env
 from bfc.training.ppo import make_loss, make_models, ppo_update
 from bfc.transforms import PolicyObservation
 

@@ -3,8 +3,12 @@
 __version__ = "0.1.0"
 
 
-def make_env(cfg, **overrides):
-    """Build the env and the transform stack a config asks for (see bfc.make_env)."""
-    from bfc.make_env import make_env as _make_env
+def make_env(cfg, **options):
+    """Build the env and the transform stack a config asks for (see bfc.factory.make_env).
 
-    return _make_env(cfg, **overrides)
+    A function, never shadowed by a submodule of the same name (there is none), so it can be
+    called any number of times in any import order; bfc.factory is imported on first call.
+    """
+    from bfc.factory import make_env as _make_env
+
+    return _make_env(cfg, **options)

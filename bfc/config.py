@@ -1,17 +1,26 @@
-"""Structured-config schemas: Hydra checks every override against these, so a typo is an error.
+"""Structured-config schemas: every key a run or an evaluation accepts, with its default.
 
+Importing this module registers the schemas with Hydra's ConfigStore (`base_config` for
+conf/config.yaml, `base_evaluate` for conf/evaluate.yaml), so `compose(overrides)` works from a
+notebook as `python train.py ...` does from the shell. The composed config is closed: a key the
+schema does not define is an error whether or not it came with `+` (`check_keys`).
 The env's own parameter dataclasses are reused as schema, so each default lives in one place.
 Values are validated where they are used (the env and transform constructors name the key);
 `validate(cfg)` also checks the training-level values before anything starts.
 """
 
+from __future__ import annotations
+
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 from hydra.core.config_store import ConfigStore
-from omegaconf import MISSING  # noqa: F401  (re-exported for schemas that need it)
+from omegaconf import DictConfig, OmegaConf
 
 from bfc.envs import AirframeParams, RewardParams, StartParams, TerminationParams
+
+CONF_DIR = Path(__file__).resolve().parents[1] / "conf"  # the repository's Hydra configs
 
 ABLATIONS = ("ppo", "jd", "css", "tdts", "jd_css", "jd_tdts", "css_tdts", "jd_css_tdts")
 
@@ -35,7 +44,7 @@ class EnvConfig:
 class JDConfig:
     enabled: bool = True
     p0: float = 1.0
-    decay_frames: int = 10_000_000  # = collector.total_frames: p falls to 0 as training ends
+    decay_frames: int | None = None  # None: collector.total_frames, so p falls to 0 as training ends
     schedule: str = "linear"  # linear | cosine | constant
     z_range: list[float] = field(default_factory=lambda: [0.5, 3.0])
     roll_range: list[float] = field(default_factory=lambda: [-60.0, 60.0])  # degrees
@@ -95,7 +104,8 @@ class LossConfig:
     entropy_coeff: float = 0.0
     critic_coeff: float = 0.5
     epochs: int = 5
-    minibatch_size: int = 4096
+    num_minibatches: int = 4  # per epoch; the minibatch is frames_per_batch / num_minibatches frames
+    minibatch_size: int | None = None  # set: a fixed size in frames instead (overrides num_minibatches)
 
 
 @dataclass
@@ -113,13 +123,22 @@ class LoggerConfig:
 
 
 @dataclass
-class EvalConfig:
-    interval_frames: int = 1_000_000
+class ProtocolConfig:
+    """The paper's protocol: starts, flight length and the success rule (bfc.evaluation.judge)."""
+
     num_starts: int = 100
-    seed: int = 0
+    seed: int = 0  # protocol_starts seed; 0 = the test starts that reports quote
     seconds: float = 10.0
-    threshold: float = 0.10
+    threshold: float = 0.10  # metres, per axis
     hold_seconds: float = 1.0
+
+
+@dataclass
+class EvalConfig(ProtocolConfig):
+    """In-training evaluation: the protocol on validation starts (policy.pt is chosen on these)."""
+
+    seed: int = 1  # validation starts: not the test starts (seed 0) that evaluate.py and the docs report
+    interval_frames: int = 1_000_000
 
 
 @dataclass
@@ -148,8 +167,80 @@ class Config:
     checkpoint: CheckpointConfig = field(default_factory=CheckpointConfig)
 
 
+SUITES = ("paper",)
+
+
+@dataclass
+class EvaluateConfig:
+    """evaluate.py: one policy or controller on the protocol, or a whole suite (report.md)."""
+
+    policy: str | None = None  # path to a policy.pt
+    controller: str | None = None  # a classical controller name (bfc.evaluation.CONTROLLERS)
+    suite: str | None = None  # paper: protocol, accuracy, noise, waypoints, baselines (report.md)
+    runs: str | None = None  # suite=paper: a directory of training runs for Table 2 and learning curves
+    baselines: list[str] = field(default_factory=lambda: ["mpc", "lee"])  # suite=paper: flown beside it
+    figures: bool = True  # single evaluation: flight figures beside results.json
+    goal: list[float] = field(default_factory=lambda: [0.0, 0.0, 1.5])  # single evaluation
+    eval: ProtocolConfig = field(default_factory=ProtocolConfig)
+    noise: NoiseConfig = field(default_factory=NoiseConfig)  # single evaluation: seen by the controller only
+
+
 def register() -> None:
-    ConfigStore.instance().store(name="base_config", node=Config)
+    """Put the schemas in Hydra's ConfigStore (done on import; calling it again is harmless)."""
+    cs = ConfigStore.instance()
+    cs.store(name="base_config", node=Config)
+    cs.store(name="base_evaluate", node=EvaluateConfig)
+
+
+register()
+
+SCHEMAS = {"config": Config, "evaluate": EvaluateConfig}
+GROUPS = {"config": ("ablation",), "evaluate": ()}
+
+
+def compose(overrides=(), config_name: str = "config") -> DictConfig:
+    """The config `python train.py <overrides>` (or evaluate.py, config_name="evaluate") would run
+    with, from anywhere: a notebook, a test, a script. Unknown keys and bad values raise ValueError."""
+    from hydra import compose as hydra_compose
+    from hydra import initialize_config_dir
+    from hydra.errors import HydraException
+    from omegaconf.errors import OmegaConfBaseException
+
+    if config_name not in SCHEMAS:
+        raise ValueError(f"config_name must be one of {sorted(SCHEMAS)}, got {config_name!r}")
+    try:
+        with initialize_config_dir(config_dir=str(CONF_DIR), version_base="1.3"):
+            cfg = hydra_compose(config_name=config_name, overrides=list(overrides))
+    except (HydraException, OmegaConfBaseException) as err:
+        raise ValueError(str(err).splitlines()[0]) from None
+    check_keys(cfg, config_name)
+    return cfg
+
+
+def _unknown(node, schema, prefix: str = ""):
+    for key in node:
+        full = f"{prefix}{key}"
+        if key not in schema:
+            return full, prefix.rstrip(".") or "the top level", list(schema.keys())
+        child, sub = node[key], schema[key]
+        if isinstance(child, dict) and isinstance(sub, DictConfig):
+            found = _unknown(child, sub, f"{full}.")
+            if found:
+                return found
+    return None
+
+
+def check_keys(cfg, config_name: str = "config") -> None:
+    """Raise ValueError on the first key of `cfg` that the schema does not define (a typo, or a
+    `+key=value` that names nothing)."""
+    plain = OmegaConf.to_container(cfg, resolve=False) if OmegaConf.is_config(cfg) else dict(cfg)
+    plain.pop("hydra", None)
+    found = _unknown(plain, OmegaConf.structured(SCHEMAS[config_name]))
+    if found:
+        key, where, allowed = found
+        groups = GROUPS[config_name]
+        hint = f"; config groups: {', '.join(f'+{g}=...' for g in groups)}" if groups and "." not in key else ""
+        raise ValueError(f"unknown config key {key!r}; {where} has: {', '.join(allowed)}{hint}")
 
 
 def _check(cond: bool, key: str, allowed: str, value) -> None:
@@ -157,9 +248,26 @@ def _check(cond: bool, key: str, allowed: str, value) -> None:
         raise ValueError(f"{key} must be {allowed}, got {value!r}")
 
 
+def minibatch_size(cfg) -> int:
+    """Frames per PPO minibatch: loss.minibatch_size if set, else frames_per_batch / num_minibatches."""
+    lo = cfg.loss
+    if lo.minibatch_size is not None:
+        return int(lo.minibatch_size)
+    return max(1, int(cfg.collector.frames_per_batch) // int(lo.num_minibatches))
+
+
+def jd_decay_frames(cfg) -> int:
+    """Frames over which JD's probability falls to 0: jd.decay_frames if set, else the run's length."""
+    d = cfg.jd.decay_frames
+    return int(cfg.collector.total_frames if d is None else d)
+
+
 def validate(cfg) -> None:
     """Training-level checks; env and transform values are checked by their constructors."""
+    check_keys(cfg)
     c = cfg.collector
+    num_envs = cfg.env.num_envs
+    _check(isinstance(num_envs, int) and num_envs >= 1, "env.num_envs", "an integer >= 1", num_envs)
     _check(c.total_frames > 0, "collector.total_frames", "> 0", c.total_frames)
     _check(c.frames_per_batch > 0, "collector.frames_per_batch", "> 0", c.frames_per_batch)
     _check(
@@ -174,11 +282,21 @@ def validate(cfg) -> None:
     _check(0 <= lo.lmbda <= 1, "loss.lmbda", "in [0, 1]", lo.lmbda)
     _check(lo.epochs >= 1, "loss.epochs", ">= 1", lo.epochs)
     _check(
-        0 < lo.minibatch_size <= c.frames_per_batch,
-        "loss.minibatch_size",
+        1 <= lo.num_minibatches <= c.frames_per_batch,
+        "loss.num_minibatches",
         f"in [1, collector.frames_per_batch={c.frames_per_batch}]",
-        lo.minibatch_size,
+        lo.num_minibatches,
     )
+    if lo.minibatch_size is not None:
+        _check(
+            0 < lo.minibatch_size <= c.frames_per_batch,
+            "loss.minibatch_size",
+            f"null or in [1, collector.frames_per_batch={c.frames_per_batch}]",
+            lo.minibatch_size,
+        )
+    if cfg.jd.decay_frames is not None:
+        d = cfg.jd.decay_frames
+        _check(d >= 0, "jd.decay_frames", "null (= collector.total_frames) or >= 0", d)
     _check(cfg.optim.lr > 0, "optim.lr", "> 0", cfg.optim.lr)
     _check(
         cfg.model.activation in ("tanh", "relu", "elu"), "model.activation", "tanh, relu or elu", cfg.model.activation
@@ -186,6 +304,14 @@ def validate(cfg) -> None:
     _check(cfg.model.init_std > 0, "model.init_std", "> 0", cfg.model.init_std)
     _check(cfg.noise.kind in ("none", "gaussian", "ou"), "noise.kind", "none, gaussian or ou", cfg.noise.kind)
     _check(cfg.eval.interval_frames > 0, "eval.interval_frames", "> 0", cfg.eval.interval_frames)
-    _check(cfg.eval.num_starts >= 1, "eval.num_starts", ">= 1", cfg.eval.num_starts)
+    check_protocol(cfg.eval)
     _check(cfg.checkpoint.interval_frames > 0, "checkpoint.interval_frames", "> 0", cfg.checkpoint.interval_frames)
     _check(cfg.torch_threads >= 1, "torch_threads", ">= 1", cfg.torch_threads)
+
+
+def check_protocol(p, section: str = "eval") -> None:
+    """The protocol keys of `eval` (training) or evaluate.py's `eval` section."""
+    _check(p.num_starts >= 1, f"{section}.num_starts", ">= 1", p.num_starts)
+    _check(p.seconds > 0, f"{section}.seconds", "> 0", p.seconds)
+    _check(p.threshold > 0, f"{section}.threshold", "> 0 (metres)", p.threshold)
+    _check(0 < p.hold_seconds <= p.seconds, f"{section}.hold_seconds", f"in (0, {section}.seconds]", p.hold_seconds)

@@ -110,3 +110,11 @@ def load_policy(path) -> tuple[ProbabilisticActor, dict]:
     actor.module[0].module.load_state_dict(payload["state_dict"])
     actor.eval()
     return actor, payload
+
+
+def export_onnx(policy_path, onnx_path, opset=None):
+    """Write a policy file as an ONNX model (the deterministic policy with its observation and
+    action maps inside); see bfc.export and docs/export.md. Needs the `onnx` extra."""
+    from bfc.export import export_onnx as _export_onnx
+
+    return _export_onnx(policy_path, onnx_path, opset=opset)

@@ -1,5 +1,5 @@
 """Building the TorchRL Collector over the env, and rollout/episode statistics."""
 
-from bfc.collectors.collector import carrier_state, episode_stats, make_collector, restore_carrier
+from bfc.collectors.collector import ResumableCollector, episode_stats, make_collector
 
-__all__ = ["carrier_state", "episode_stats", "make_collector", "restore_carrier"]
+__all__ = ["ResumableCollector", "episode_stats", "make_collector"]

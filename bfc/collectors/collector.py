@@ -8,9 +8,30 @@ from torchrl.collectors import Collector
 from bfc import keys
 
 
-def make_collector(env, policy, frames_per_batch: int, total_frames: int) -> Collector:
+class ResumableCollector(Collector):
+    """TorchRL's synchronous Collector whose `state_dict()` is a whole snapshot of collection.
+
+    TorchRL's own state dict holds the transforms' state, the policy and the frame counter; a run
+    that must resume bit-identically after a kill also needs the base env (physics, motors,
+    generators: `BFCEnv.state_dict`) and the in-flight tensordict the next step starts from
+    (current observations, episode sums and step counts), which TorchRL keeps as `_carrier`.
+    """
+
+    def state_dict(self):
+        sd = super().state_dict()
+        sd["env_state_dict"] = self.env.state_dict()
+        sd["carrier"] = self._carrier.to_dict()
+        return sd
+
+    def load_state_dict(self, state_dict, **kwargs) -> None:
+        super().load_state_dict(state_dict, **kwargs)
+        carrier = self._carrier
+        carrier.update(type(carrier).from_dict(state_dict["carrier"], batch_size=carrier.batch_size))
+
+
+def make_collector(env, policy, frames_per_batch: int, total_frames: int) -> ResumableCollector:
     """A synchronous collector: batches of shape (num_envs, frames_per_batch / num_envs)."""
-    return Collector(
+    return ResumableCollector(
         env,
         policy,
         frames_per_batch=frames_per_batch,
@@ -34,13 +55,3 @@ def episode_stats(data: TensorDictBase) -> dict[str, float]:
         "train/crash_rate": terminated.float().mean().item(),
         "train/episodes": float(done.sum()),
     }
-
-
-def carrier_state(collector: Collector) -> dict:
-    """The collector's in-flight tensordict (current observations, episode sums) as plain data."""
-    return collector._carrier.to_dict()
-
-
-def restore_carrier(collector: Collector, state: dict) -> None:
-    carrier = collector._carrier
-    carrier.update(type(carrier).from_dict(state, batch_size=carrier.batch_size))

@@ -1,6 +1,6 @@
 """Classical baselines that speak the policy's action interface (odometry + goal in, rad/s out).
 
-`CONTROLLERS` maps the names `evaluate.py controller=...` and `bfc.evaluation.fly` accept to
+`CONTROLLERS` maps the names `evaluate.py controller=...` and `bfc.evaluation.fly(...)` accept to
 factories `(airframe, dt) -> Controller`.
 """
 

@@ -65,6 +65,10 @@ class Controller(TensorDictModuleBase):
     def reset(self) -> None:
         """Forget per-flight state (subclasses with state extend this)."""
 
+    def begin_flight(self) -> None:
+        """Called by `run_flights` before each flight."""
+        self.reset()
+
     def forward(self, td: TensorDictBase) -> TensorDictBase:
         odometry = td.get(keys.ODOMETRY)
         goal = td.get(keys.GOAL).to(torch.float64)

@@ -152,7 +152,7 @@ class QuadrotorEnv(EnvBase):
         self,
         num_envs: int = 1,
         *,
-        control_hz: float = 250.0,
+        control_hz: float = 100.0,
         physics_dt: float = 0.002,
         episode_seconds: float = 5.0,
         goal: tuple[float, float, float] = (0.0, 0.0, 1.5),
@@ -176,7 +176,9 @@ class QuadrotorEnv(EnvBase):
             control_hz,
         )
         _check(episode_seconds > 0, "env.episode_seconds", "> 0", episode_seconds)
-        _check(len(goal) == 3, "env.goal", "3 numbers (x, y, z)", goal)
+        _check(
+            len(goal) == 3 and all(math.isfinite(float(v)) for v in goal), "env.goal", "3 finite numbers (x, y, z)", goal
+        )
         _check(start_motors in ("rest", "hover"), "env.start_motors", "'rest' or 'hover'", start_motors)
         if num_threads is None:
             num_threads = os.cpu_count() or 1
@@ -262,11 +264,18 @@ class QuadrotorEnv(EnvBase):
         self.done_spec = Composite(done=flag(), terminated=flag(), truncated=flag(), shape=(n,))
 
     # ----------------------------------------------------------------- public helpers
+    @property
+    def goal(self) -> torch.Tensor:
+        """(N, 3) the desired position of each env (world frame; a copy). Also an output (`"goal"`)."""
+        return self._goal.clone()
+
     def set_goal(self, goal, env_ids: torch.Tensor | None = None) -> None:
         """Set the desired position of all envs, or of `env_ids` (a mask or indices)."""
         goal = torch.as_tensor(goal, dtype=torch.float32)
         if goal.shape[-1:] != (3,):
             raise ValueError(f"goal must have shape (3,) or (n, 3), got {tuple(goal.shape)}")
+        if not bool(torch.isfinite(goal).all()):
+            raise ValueError(f"goal must be finite (x, y, z in metres), got {goal.tolist()}")
         if env_ids is None:
             self._goal[:] = goal
         else:
@@ -283,6 +292,30 @@ class QuadrotorEnv(EnvBase):
         start[:, 2] = self.ground_height
         start[:, 5] = (yaw * 2 - 1) * math.radians(self.start_params.yaw_range_deg)
         return torch.from_numpy(start)
+
+    # ----------------------------------------------------------------- state (checkpoints)
+    _STATE = ("physics", "motor", "lin_acc", "ang_acc", "steps", "goal")
+
+    def get_extra_state(self) -> dict:
+        """Everything that evolves between steps (physics, motor speeds, accelerations, step
+        counters, goals, the start generator): part of `state_dict()`, so the state dict of a
+        `make_env` env (transforms included) is a whole snapshot that resumes bit-identically."""
+        state = {name: getattr(self, f"_{name}").clone() for name in self._STATE}
+        state["generator"] = self._generator.get_state()
+        state["physics_failures"] = torch.tensor(self.physics_failures)
+        return state
+
+    def set_extra_state(self, state: dict) -> None:
+        for name in self._STATE:
+            mine, theirs = getattr(self, f"_{name}"), state[name]
+            if theirs.shape != mine.shape:
+                raise ValueError(
+                    f"env state {name!r} has shape {tuple(theirs.shape)}, this env needs {tuple(mine.shape)} "
+                    "(a checkpoint of another num_envs?)"
+                )
+            mine.copy_(theirs)  # in place: the NumPy views of the hot path stay valid
+        self._generator.set_state(state["generator"])
+        self.physics_failures = int(state["physics_failures"])
 
     # ----------------------------------------------------------------- TorchRL hooks
     def _set_seed(self, seed: int | None) -> None:

@@ -6,8 +6,7 @@ import torch
 from tensordict import TensorDict
 
 from bfc import keys
-from bfc.evaluation.fly import _inside_and_hold
-from bfc.evaluation.protocol import success_and_time
+from bfc.evaluation.judge import judge
 
 
 def tilt_degrees(quaternion: torch.Tensor) -> torch.Tensor:
@@ -20,8 +19,7 @@ def tilt_degrees(quaternion: torch.Tensor) -> torch.Tensor:
 def summarize(trajectory: TensorDict, threshold: float = 0.10, hold_seconds: float = 1.0) -> dict:
     """Success count and rate, per-start outcome and time to success, and the mean and 95th
     percentile of position and attitude error over the flight after success."""
-    inside, hold, dt = _inside_and_hold(trajectory, None, threshold, hold_seconds)
-    ok, t_success = success_and_time(inside, hold, dt)
+    ok, t_success, _ = judge(trajectory, threshold, hold_seconds)
     pos_err = (trajectory.get(keys.POSITION) - trajectory.get(keys.GOAL)).norm(dim=-1)
     att_err = tilt_degrees(trajectory.get(keys.QUATERNION))  # the task is yaw-free: heading is no error
     time = trajectory.get("time")

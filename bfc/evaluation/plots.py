@@ -4,17 +4,21 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import matplotlib
+import torch
+from matplotlib.figure import Figure  # no pyplot: the library leaves the backend to the caller
+from tensordict import TensorDict
 
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import torch  # noqa: E402
-from tensordict import TensorDict  # noqa: E402
-
-from bfc import keys  # noqa: E402
-from bfc.envs.rotations import quat_to_matrix  # noqa: E402
+from bfc import keys
+from bfc.envs.rotations import quat_to_matrix
 
 AXIS_COLOURS = ("red", "green", "blue")  # body x, y, z
+
+
+def subplots(nrows: int = 1, ncols: int = 1, figsize=None):
+    """pyplot.subplots without pyplot: a Figure that savefig renders with Agg whatever the
+    process's backend, and that no global figure manager keeps alive."""
+    fig = Figure(figsize=figsize)
+    return fig, fig.subplots(nrows, ncols)
 
 
 def _draw_frames(ax, pos, quat, every: int, length: float = 0.15):
@@ -35,7 +39,7 @@ def plot_flights(
     quat = trajectory.get(keys.QUATERNION)
     goal = trajectory.get(keys.GOAL)[0, -1]
     n = pos.shape[0] if max_flights is None else min(max_flights, pos.shape[0])
-    fig = plt.figure(figsize=(13, 4.3))
+    fig = Figure(figsize=(13, 4.3))
     ax3 = fig.add_subplot(1, 3, 1, projection="3d")
     side = fig.add_subplot(1, 3, 2)
     top = fig.add_subplot(1, 3, 3)
@@ -65,7 +69,6 @@ def plot_flights(
     fig.suptitle(title)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
-    plt.close(fig)
 
 
 def plot_errors(trajectory: TensorDict, path, title: str = "position and attitude error"):
@@ -75,7 +78,7 @@ def plot_errors(trajectory: TensorDict, path, title: str = "position and attitud
     t = trajectory.get("time")[0]
     pos_err = (trajectory.get(keys.POSITION) - trajectory.get(keys.GOAL)).norm(dim=-1)
     att = tilt_degrees(trajectory.get(keys.QUATERNION))
-    fig, axes = plt.subplots(1, 2, figsize=(10, 3.4))
+    fig, axes = subplots(1, 2, figsize=(10, 3.4))
     for ax, err, label in ((axes[0], pos_err, "position error (m)"), (axes[1], att, "attitude error: tilt (deg)")):
         q = torch.quantile(err, torch.tensor([0.1, 0.5, 0.9]), dim=0)
         ax.fill_between(t, q[0], q[2], alpha=0.3, label="10-90%")
@@ -88,7 +91,6 @@ def plot_errors(trajectory: TensorDict, path, title: str = "position and attitud
     fig.suptitle(title)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
-    plt.close(fig)
 
 
 def flight_figures(trajectory: TensorDict, out) -> list[Path]:

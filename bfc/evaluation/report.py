@@ -13,19 +13,15 @@ import json
 import math
 from pathlib import Path
 
-import matplotlib
+import torch
+from tensordict import TensorDict
 
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import torch  # noqa: E402
-from tensordict import TensorDict  # noqa: E402
-
-from bfc.controllers import CONTROLLERS  # noqa: E402
-from bfc.envs.rotations import euler_to_quat  # noqa: E402
-from bfc.evaluation.fly import fly  # noqa: E402
-from bfc.evaluation.metrics import summarize, tilt_degrees  # noqa: E402
-from bfc.evaluation.plots import flight_figures, plot_flights  # noqa: E402
-from bfc.evaluation.protocol import protocol_starts  # noqa: E402
+from bfc.config import ProtocolConfig
+from bfc.envs.rotations import euler_to_quat
+from bfc.evaluation.flights import fly
+from bfc.evaluation.metrics import summarize, tilt_degrees
+from bfc.evaluation.plots import flight_figures, plot_flights, subplots
+from bfc.evaluation.protocol import protocol_starts
 
 NOISE_CONDITIONS = [
     ("none", {"kind": "none"}),
@@ -56,19 +52,21 @@ def _fmt(v, digits=3):
     return "n/a" if v is None else f"{v:.{digits}f}"
 
 
-def policy_sections(controller, out: Path, num_starts: int = 100, seed: int = 0) -> tuple[list[str], TensorDict]:
+def policy_sections(controller, out: Path, protocol: ProtocolConfig) -> tuple[list[str], TensorDict]:
     """The protocol, accuracy, noise and waypoint sections, and the protocol flights (reused by the
     controller comparison)."""
+    p = protocol
+    num_starts, seed = p.num_starts, p.seed
     starts = protocol_starts(num_starts, seed)
     lines = []
-    flights = fly(controller, starts, seconds=10.0, seed=seed)
-    s = summarize(flights)
+    flights = fly(controller, starts, seconds=p.seconds, seed=seed)
+    s = summarize(flights, p.threshold, p.hold_seconds)
     (out / "protocol.json").write_text(json.dumps(s, indent=1))
     flight_figures(flights, out)
     lines += [
         "## Protocol (paper sec. 7.1)",
-        f"{num_starts} starts from `protocol_starts({num_starts}, seed={seed})`, 10 s, "
-        "success = within 0.10 m on every axis for 1 s.",
+        f"{num_starts} starts from `protocol_starts({num_starts}, seed={seed})`, {p.seconds:g} s, "
+        f"success = within {p.threshold:g} m on every axis for {p.hold_seconds:g} s.",
         "",
         "| success | fail | crashes | median time to success (s) | position error after success, mean / p95 (m) "
         "| tilt after success, mean / p95 (deg) |",
@@ -94,8 +92,8 @@ def policy_sections(controller, out: Path, num_starts: int = 100, seed: int = 0)
     ]
     rows = []
     for name, noise in NOISE_CONDITIONS:
-        nf = fly(controller, starts, seconds=10.0, noise=noise, seed=seed)
-        ns = summarize(nf)
+        nf = fly(controller, starts, seconds=p.seconds, noise=noise, seed=seed)
+        ns = summarize(nf, p.threshold, p.hold_seconds)
         rows.append((name, ns))
     _noise_figure(rows, out / "noise.png")
     lines += [
@@ -134,11 +132,11 @@ def start_tilt_degrees(starts: torch.Tensor) -> torch.Tensor:
     return tilt_degrees(euler_to_quat(starts[:, 3:6].double()))
 
 
-def controller_sections(
-    controllers: dict, out: Path, num_starts: int = 100, seed: int = 0, flown: dict | None = None
-) -> list[str]:
+def controller_sections(controllers: dict, out: Path, protocol: ProtocolConfig, flown: dict | None = None) -> list[str]:
     """BFC against the classical baselines on the same starts (paper figs. 19-21): success, success
     by initial tilt, time to success, errors after success and compute time per control step."""
+    p = protocol
+    num_starts, seed = p.num_starts, p.seed
     starts = protocol_starts(num_starts, seed)
     tilt = start_tilt_degrees(starts)
     bins = [(lo, hi, (tilt >= lo) & (tilt < hi)) for lo, hi in zip(TILT_BINS[:-1], TILT_BINS[1:], strict=True)]
@@ -147,8 +145,8 @@ def controller_sections(
     for label, controller in controllers.items():
         flights = (flown or {}).get(label)  # flights already flown on these starts, by label
         if flights is None:
-            flights = fly(controller, starts, seconds=10.0, seed=seed)
-        s = summarize(flights)
+            flights = fly(controller, starts, seconds=p.seconds, seed=seed)
+        s = summarize(flights, p.threshold, p.hold_seconds)
         ok = torch.tensor([r["success"] for r in s["per_start"]])
         by_tilt[label] = [ok[mask].float().mean().item() for _, _, mask in bins]
         step_ms = 1e3 * flights.get("controller_seconds")[0, 1:].mean().item()  # the first call sets up
@@ -187,7 +185,7 @@ def controller_sections(
 
 
 def _tilt_figure(bins, by_tilt: dict, path) -> None:
-    fig, ax = plt.subplots(figsize=(8, 3.6))
+    fig, ax = subplots(figsize=(8, 3.6))
     width = 0.8 / max(1, len(by_tilt))
     for k, (label, rates) in enumerate(by_tilt.items()):
         ax.bar([i + k * width for i in range(len(bins))], rates, width, label=label)
@@ -199,14 +197,13 @@ def _tilt_figure(bins, by_tilt: dict, path) -> None:
     ax.legend()
     fig.tight_layout()
     fig.savefig(path, dpi=110)
-    plt.close(fig)
 
 
 def _noise_figure(rows, path):
     names = [r[0] for r in rows]
     rate = [r[1]["success_rate"] for r in rows]
     err = [r[1]["position_error_after_success_m"]["mean"] or float("nan") for r in rows]
-    fig, axes = plt.subplots(1, 2, figsize=(11, 3.6))
+    fig, axes = subplots(1, 2, figsize=(11, 3.6))
     axes[0].barh(names, rate, color="tab:blue")
     axes[0].set_xlabel("success rate")
     axes[0].set_xlim(0, 1)
@@ -217,7 +214,6 @@ def _noise_figure(rows, path):
         ax.grid(alpha=0.3, axis="x")
     fig.tight_layout()
     fig.savefig(path, dpi=110)
-    plt.close(fig)
 
 
 def _tb_scalars(run_dir: Path, tag: str) -> tuple[torch.Tensor, torch.Tensor]:
@@ -261,7 +257,7 @@ def runs_sections(runs_dir: Path, out: Path) -> list[str]:
         )
     if not by_variant:
         return ["## Ablation (Table 2)", f"No training runs (summary.json) under {runs_dir}.", ""]
-    fig, axes = plt.subplots(2, 3, figsize=(15, 7.6))
+    fig, axes = subplots(2, 3, figsize=(15, 7.6))
     lines = [
         "## Ablation (Table 2)",
         f"Runs under `{runs_dir}`; success out of 100 protocol starts at the end of training, mean over seeds.",
@@ -307,7 +303,6 @@ def runs_sections(runs_dir: Path, out: Path) -> list[str]:
     axes[0, 0].legend(fontsize=7)
     fig.tight_layout()
     fig.savefig(out / "learning_curves.png", dpi=110)
-    plt.close(fig)
     lines += [
         "",
         "## Learning curves (figs. 8-10)",
@@ -322,21 +317,25 @@ def runs_sections(runs_dir: Path, out: Path) -> list[str]:
 
 
 def write_report(
-    out, controller=None, runs_dir=None, num_starts: int = 100, seed: int = 0, header: str = "", baselines=()
+    out, controller=None, runs_dir=None, protocol: ProtocolConfig | None = None, header: str = "", baselines=()
 ) -> Path:
     """report.md and its figures in `out`: the protocol suite for `controller` (a policy path or a
     controller name), the comparison with `baselines` (controller names), and Table 2 and the
-    learning curves of the runs under `runs_dir`."""
+    learning curves of the runs under `runs_dir`. protocol: starts, seconds and success rule
+    (default: the paper's, on the test starts)."""
+    from bfc.controllers import CONTROLLERS
+
+    protocol = protocol or ProtocolConfig()
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     lines = ["# bfc evaluation report", "", header, ""]
     if controller is not None:
-        policy_lines, flights = policy_sections(controller, out, num_starts, seed)
+        policy_lines, flights = policy_sections(controller, out, protocol)
         lines += policy_lines
         label = "bfc" if str(controller) not in CONTROLLERS else str(controller)
         others = {b: b for b in baselines if b != label}
         if others:
-            lines += controller_sections({label: controller, **others}, out, num_starts, seed, {label: flights})
+            lines += controller_sections({label: controller, **others}, out, protocol, {label: flights})
     if runs_dir is not None:
         lines += runs_sections(Path(runs_dir), out)
     path = out / "report.md"

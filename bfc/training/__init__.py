@@ -1,5 +1,5 @@
-"""Models, PPO loss and update, the training loop, checkpoints and resume."""
+"""Models, PPO loss and update, the training runner, checkpoints and resume."""
 
-from bfc.training.trainer import train
+from bfc.training.runner import Runner, train
 
-__all__ = ["train"]
+__all__ = ["Runner", "train"]

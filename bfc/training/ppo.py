@@ -8,6 +8,7 @@ from torchrl.objectives import ClipPPOLoss, KLPENPPOLoss
 from torchrl.objectives.value import GAE
 
 from bfc import keys
+from bfc.config import minibatch_size
 from bfc.policy import make_actor, make_critic
 
 # What the loss reads; selecting these first makes every minibatch gather cheaper.
@@ -72,12 +73,13 @@ def ppo_update(data: TensorDictBase, loss_module, advantage, optimizer, cfg) -> 
     sums: dict[str, float] = {}
     count = 0
     clip_fraction_seen = False
+    size = minibatch_size(cfg)
     compute_advantage(data, advantage)
     flat = data.select(*_LOSS_KEYS, strict=False).reshape(-1)
     for _ in range(lo.epochs):
         perm = torch.randperm(flat.shape[0])
-        for start in range(0, flat.shape[0], lo.minibatch_size):
-            batch = flat[perm[start : start + lo.minibatch_size]]
+        for start in range(0, flat.shape[0], size):
+            batch = flat[perm[start : start + size]]
             out = loss_module(batch)
             total = out["loss_objective"] + out["loss_critic"] + out.get("loss_entropy", 0.0)
             optimizer.zero_grad(set_to_none=True)

@@ -40,6 +40,13 @@ class BatchedTransform(Transform):
     def set_seed(self, seed: int) -> None:
         self.generator.manual_seed(int(seed))
 
+    def get_extra_state(self) -> dict:
+        """The generator's state goes into `state_dict()` beside the buffers."""
+        return {"generator": self.generator.get_state()}
+
+    def set_extra_state(self, state: dict) -> None:
+        self.generator.set_state(state["generator"])
+
     def rand(self, *shape: int) -> torch.Tensor:
         return torch.rand(*shape, generator=self.generator)
 

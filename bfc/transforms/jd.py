@@ -32,7 +32,7 @@ class JumpingDistribution(StartSampler):
         self,
         num_envs: int,
         p0: float = 1.0,
-        decay_frames: int = 20_000_000,
+        decay_frames: int = 10_000_000,
         schedule: str = "linear",
         z_range=(0.5, 3.0),
         roll_range=(-60.0, 60.0),

@@ -85,8 +85,8 @@ def test_lee_recovers_a_tilted_start():
 
 def run_steps(controller, starts, steps):
     """Fly by hand, checking the MPC's input after every control step."""
-    from bfc.evaluation.fly import config_for
-    from bfc.make_env import find_transform, make_env
+    from bfc.evaluation.flights import config_for
+    from bfc.factory import find_transform, make_env
     from bfc.transforms import GivenStarts
 
     cfg = config_for({"control_hz": 250.0})

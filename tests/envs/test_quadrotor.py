@@ -81,7 +81,7 @@ def test_raising_one_rotor_lifts_that_side(rotor, arm):
 
 
 def test_free_fall_matches_gravity():
-    env = QuadrotorEnv(1)
+    env = QuadrotorEnv(1, control_hz=250.0)
     td = reset_to(env, air_start(1, z=3.0))
     steps = 75  # 0.3 s
     td = fly(env, td, torch.zeros(4), steps)

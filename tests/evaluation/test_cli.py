@@ -33,7 +33,7 @@ def test_shipped_policy_is_data_and_flies_at_its_own_rate():
 
 
 def test_evaluate_writes_results_and_figures(tmp_path):
-    r = evaluate(f"policy={SHIPPED}", "num_starts=12", out=tmp_path)
+    r = evaluate(f"policy={SHIPPED}", "eval.num_starts=12", out=tmp_path)
     assert r.returncode == 0, r.stderr[-2000:]
     results = json.loads((tmp_path / "results.json").read_text())
     assert results["starts"] == 12 and len(results["per_start"]) == 12
@@ -62,7 +62,7 @@ def test_unknown_controller_fails_cleanly(tmp_path):
 
 
 def test_paper_suite_writes_a_report_with_figures(tmp_path):
-    r = evaluate("suite=paper", f"policy={SHIPPED}", "num_starts=6", out=tmp_path)
+    r = evaluate("suite=paper", f"policy={SHIPPED}", "eval.num_starts=6", out=tmp_path)
     assert r.returncode == 0, r.stderr[-2000:]
     report = (tmp_path / "report.md").read_text()
     for section in ("## Protocol", "## Accuracy", "## Odometry noise", "## Waypoints", "## Controllers"):
@@ -87,3 +87,18 @@ def test_suite_reads_table_2_from_training_runs(tmp_path):
     rows = [line for line in lines if line.startswith("| jd")]
     assert [row.split("|")[1].strip() for row in rows] == ["jd", "jd_tdts"]
     assert (tmp_path / "learning_curves.png").stat().st_size > 10_000
+
+
+def test_the_protocol_keys_moved_under_eval(tmp_path):
+    r = evaluate("policy=pretrained/policy.pt", "num_starts=5", out=tmp_path)
+    assert r.returncode != 0 and "Key 'num_starts' not in 'EvaluateConfig'" in r.stderr
+
+
+def test_single_evaluation_honours_the_protocol_keys(tmp_path):
+    r = evaluate(
+        f"policy={SHIPPED}", "eval.num_starts=3", "eval.seconds=2", "eval.seed=7", "figures=false", out=tmp_path
+    )
+    assert r.returncode == 0, r.stderr[-2000:]
+    results = json.loads((tmp_path / "results.json").read_text())
+    assert results["starts"] == 3 and results["protocol"]["seconds"] == 2.0 and results["protocol"]["seed"] == 7
+    assert not (tmp_path / "flight_1.png").exists()

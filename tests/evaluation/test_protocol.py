@@ -123,7 +123,7 @@ def test_fly_states_match_the_envs_own_rollout():
 
     starts = protocol_starts(3, seed=5)
     tr = fly(hover_controller(), starts, seconds=0.2)
-    env = QuadrotorEnv(3, episode_seconds=1.0)
+    env = QuadrotorEnv(3, control_hz=250.0, episode_seconds=1.0)  # fly: modules at 250 Hz
     td = env.reset(env.reset().set(keys.START_STATE, starts))
     for t in range(tr.shape[1]):
         td = env.step(td.set(keys.ACTION, torch.full((3, 4), env.hover_speed)))["next"]

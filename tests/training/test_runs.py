@@ -50,8 +50,33 @@ def test_tiny_run_of_every_variant(name, tmp_path):
     torch.load(tmp_path / "checkpoints" / "last.pt", weights_only=True)
 
 
+def _flat(tree, prefix=""):
+    """Every tensor of a nested checkpoint dict, by path."""
+    if isinstance(tree, torch.Tensor):
+        return {prefix: tree}
+    if isinstance(tree, dict):
+        out = {}
+        for k, v in tree.items():
+            out.update(_flat(v, f"{prefix}/{k}"))
+        return out
+    return {}
+
+
+def _assert_same_checkpoint(a, b):
+    fa, fb = _flat(a), _flat(b)
+    assert fa.keys() == fb.keys()
+    for k in fa:
+        assert torch.equal(fa[k], fb[k]), k
+
+    def results(history):  # evaluations without their wall-clock
+        return [{k: v for k, v in h.items() if "seconds" not in k} for h in history]
+
+    assert results(a["history"]) == results(b["history"])
+
+
 def test_resumed_run_ends_like_an_uninterrupted_one(tmp_path):
-    overrides = [*TINY, "collector.total_frames=4096", "env.episode_seconds=0.2", "seed=3"]
+    # JD's schedule follows collector.total_frames unless set: pin it, since the "killed" run is a shorter one
+    overrides = [*TINY, "collector.total_frames=4096", "jd.decay_frames=4096", "env.episode_seconds=0.2", "seed=3"]
     full = tmp_path / "full"
     train(compose_cfg(overrides), full)
 
@@ -62,19 +87,51 @@ def test_resumed_run_ends_like_an_uninterrupted_one(tmp_path):
     a = torch.load(full / "checkpoints" / "last.pt", weights_only=True)
     b = torch.load(part / "checkpoints" / "last.pt", weights_only=True)
     assert resumed["frames"] == a["frames"] == b["frames"] == 4096
-    ta, tb = a["env"]["transforms"], b["env"]["transforms"]
-    jd_frames = [k for k in ta if k.endswith(".frames")]
-    assert jd_frames and all(torch.equal(ta[k], tb[k]) for k in jd_frames)
-    css_values = [k for k in ta if k.endswith(".values")]
-    assert css_values and all(torch.equal(ta[k], tb[k]) for k in css_values)
-    for k in ta:
-        assert torch.equal(ta[k], tb[k]), k
-    for k in a["actor"]:
-        assert torch.equal(a["actor"][k], b["actor"][k]), k
+    env_state = a["collector"]["env_state_dict"]
+    # the checkpoint holds the base env's state (physics, motors, generator) beside the transforms'
+    assert {"physics", "motor", "goal", "generator"} <= set(env_state["base_env._extra_state"])
+    assert any(k.endswith(".frames") for k in env_state) and any(k.endswith(".values") for k in env_state)
+    _assert_same_checkpoint(a, b)  # bit-identical: env, transforms, carrier, models, optimizer, RNG
     # resuming a finished run collects nothing more
     again = train(compose_cfg([*overrides, f"resume={part}"]), part)
     assert again["frames"] == 4096
     assert torch.load(part / "checkpoints" / "last.pt", weights_only=True)["frames"] == 4096
+
+
+def test_a_corrupted_last_checkpoint_falls_back_one_step(tmp_path, capsys):
+    overrides = [*TINY, "collector.total_frames=3072", "jd.decay_frames=3072", "env.episode_seconds=0.2", "seed=4"]
+    full = tmp_path / "full"
+    train(compose_cfg(overrides), full)
+
+    part = tmp_path / "part"
+    train(compose_cfg([*overrides, "collector.total_frames=2048"]), part)  # checkpoints at 1024 and 2048
+    assert torch.load(part / "checkpoints" / "previous.pt", weights_only=True)["frames"] == 1024
+    (part / "checkpoints" / "last.pt").write_bytes(b"half a checkpoint")  # killed while the disk filled
+    (part / "summary.json").unlink()
+    train(compose_cfg([*overrides, f"resume={part}"]), part)
+    err = capsys.readouterr().err
+    assert "last.pt is unreadable" in err and "resuming from" in err and "previous.pt" in err
+    # from 1024 frames on, the resumed run is the uninterrupted one
+    a = torch.load(full / "checkpoints" / "last.pt", weights_only=True)
+    b = torch.load(part / "checkpoints" / "last.pt", weights_only=True)
+    assert a["frames"] == b["frames"] == 3072
+    _assert_same_checkpoint(a, b)
+
+
+def test_resume_with_no_readable_checkpoint_is_a_clear_error(tmp_path):
+    run = tmp_path / "run"
+    train(compose_cfg([*TINY, "collector.total_frames=1024", "env.episode_seconds=0.2"]), run)
+    for name in ("last.pt", "previous.pt"):
+        (run / "checkpoints" / name).write_bytes(b"garbage")
+    r = subprocess.run(
+        [sys.executable, "train.py", f"resume={run}", "hydra.run.dir=/tmp/bfc-test-cli"],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert r.returncode == 2, r.stderr[-2000:]
+    assert "cannot resume" in r.stderr and "unreadable" in r.stderr and "Traceback" not in r.stderr
 
 
 def test_joblib_multirun_makes_two_run_directories(tmp_path):

@@ -7,7 +7,7 @@ import torch
 from tensordict import TensorDict
 
 from bfc import keys
-from bfc.make_env import make_env
+from bfc.factory import make_env
 from bfc.transforms import OUOdometryNoise, element_mask
 
 

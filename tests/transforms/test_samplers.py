@@ -7,7 +7,7 @@ import torch
 from tensordict import TensorDict
 
 from bfc import keys
-from bfc.make_env import find_transform, make_env
+from bfc.factory import find_transform, make_env
 from bfc.transforms import ControlledStartingState, JumpingDistribution, TimeDependentTerminalState
 
 

@@ -5,7 +5,7 @@ import torch
 from torchrl.envs.utils import check_env_specs
 
 from bfc import keys
-from bfc.make_env import find_transform, make_env
+from bfc.factory import find_transform, make_env
 from bfc.transforms import PolicyObservation
 
 

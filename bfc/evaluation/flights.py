@@ -1,6 +1,8 @@
 """Fly controllers from given starts in the batched env, never resetting mid-flight.
 
 A crash (terminated) ends that flight as a failure: the physics goes on, but `alive` stays False.
+The flight loop (`run_flights`, what training's evaluator uses) knows nothing of the classical
+controllers: `fly` imports them only when it is asked to fly one by name.
 """
 
 from __future__ import annotations
@@ -16,8 +18,7 @@ from torchrl.envs import TransformedEnv
 from torchrl.envs.utils import ExplorationType, set_exploration_type, step_mdp
 
 from bfc import keys
-from bfc.controllers import CONTROLLERS, Controller
-from bfc.make_env import find_transform, make_env
+from bfc.factory import find_transform, make_env
 from bfc.transforms import GivenStarts, MotorSpeedAction
 
 
@@ -54,8 +55,9 @@ def run_flights(env: TransformedEnv, policy, starts: torch.Tensor, steps: int, g
     schedule = dict((int(s), g) for s, g in (goal_schedule or []))
     if 0 in schedule:
         base.set_goal(schedule[0])
-    if isinstance(policy, Controller):  # forget the previous flight's integrators and warm start
-        policy.reset()
+    begin = getattr(policy, "begin_flight", None)
+    if callable(begin):  # controllers with per-flight state (integrators, warm starts) forget it
+        begin()
     # A policy acts in its own [-1, 1] space: record every controller's command in rad/s.
     action_map = find_transform(env, MotorSpeedAction)
     to_rad_s = action_map.to_command if action_map is not None else (lambda a: a)
@@ -67,7 +69,7 @@ def run_flights(env: TransformedEnv, policy, starts: torch.Tensor, steps: int, g
         for t in range(steps):
             if t in schedule and t > 0:
                 base.set_goal(schedule[t])
-                td.set(keys.GOAL, base._goal.clone())
+                td.set(keys.GOAL, base.goal)
             t0 = time.perf_counter()
             td = policy(td)
             seconds = time.perf_counter() - t0
@@ -137,6 +139,7 @@ def fly(
     {"kind": "ou", "std": 0.05, "elements": "position"}; it corrupts only what the controller sees.
     Returns a TensorDict (n, T); see `run_flights`.
     """
+    from bfc.controllers import CONTROLLERS
     from bfc.policy import load_policy
 
     starts = torch.as_tensor(starts, dtype=torch.float32)
@@ -178,30 +181,3 @@ def fly(
         return run_flights(env, controller, starts, round(seconds / env.base_env.dt), goal_schedule=schedule)
     finally:
         env.close()
-
-
-def success(trajectory: TensorDict, goal=None, threshold: float = 0.10, hold_seconds: float = 1.0) -> torch.Tensor:
-    """(n,) bool: inside goal +/- threshold on every axis for hold_seconds of consecutive steps,
-    at any time of the flight, before any crash. goal None: the trajectory's own (scheduled) goal."""
-    from bfc.evaluation.protocol import success_and_time
-
-    return success_and_time(*_inside_and_hold(trajectory, goal, threshold, hold_seconds))[0]
-
-
-def time_to_success(trajectory: TensorDict, goal=None, threshold: float = 0.10, hold_seconds: float = 1.0):
-    """(n,) seconds from the start until the drone entered the box for the hold that succeeded (NaN: never)."""
-    from bfc.evaluation.protocol import success_and_time
-
-    return success_and_time(*_inside_and_hold(trajectory, goal, threshold, hold_seconds))[1]
-
-
-def _inside_and_hold(trajectory, goal, threshold, hold_seconds):
-    from bfc.evaluation.protocol import inside_box
-
-    time = trajectory.get("time")
-    dt = float(time[0, 1] - time[0, 0]) if time.shape[1] > 1 else float(time[0, 0])
-    pos = trajectory.get(keys.POSITION)
-    goal = trajectory.get(keys.GOAL) if goal is None else torch.as_tensor(goal, dtype=pos.dtype)
-    alive = trajectory.get("alive", torch.ones(pos.shape[:2], dtype=torch.bool))
-    inside = inside_box(pos, goal, threshold) & alive
-    return inside, max(1, round(hold_seconds / dt)), dt

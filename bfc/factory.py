@@ -1,4 +1,4 @@
-"""make_env(cfg): the base env plus the transform stack the config asks for.
+"""make_env(cfg): the base env plus the transform stack the config asks for (`bfc.make_env`).
 
 Train, evaluate, notebooks and tests all build envs here. Order matters and is fixed:
     TDTS (before CSS, whose episode bookkeeping must see TDTS's done) -> JD -> CSS -> given starts
@@ -7,9 +7,12 @@ Train, evaluate, notebooks and tests all build envs here. Order matters and is f
 
 from __future__ import annotations
 
+import zlib
+
 from omegaconf import OmegaConf
 from torchrl.envs import Compose, RewardSum, StepCounter, TransformedEnv
 
+from bfc.config import jd_decay_frames
 from bfc.envs import QuadrotorEnv
 from bfc.transforms import (
     ControlledStartingState,
@@ -89,7 +92,7 @@ def make_env(
             JumpingDistribution(
                 n,
                 p0=j.p0,
-                decay_frames=int(j.decay_frames),
+                decay_frames=jd_decay_frames(cfg),
                 schedule=j.schedule,
                 z_range=tuple(j.z_range),
                 roll_range=tuple(j.roll_range),
@@ -130,16 +133,40 @@ def make_env(
     return env
 
 
+def transform_seed(seed: int, transform) -> int:
+    """The seed of one transform's generator: the run's seed and the transform's class name, not
+    its place in the stack, so switching TDTS on or off leaves the JD and CSS random streams alone."""
+    return (int(seed) + zlib.crc32(type(transform).__name__.encode())) % 2**63
+
+
 class BFCEnv(TransformedEnv):
     """A TransformedEnv whose `set_seed` also seeds bfc's transforms (noise, samplers), each from
-    its own offset of the seed; TorchRL's TransformedEnv seeds only the base env."""
+    its own seed (`transform_seed`); TorchRL's TransformedEnv seeds only the base env.
+
+    `state_dict()` / `load_state_dict()` (nn.Module's) hold the whole state: the base env's
+    physics, motors, counters, goals and generator, and every transform's buffers and generator.
+    """
+
+    def state_dict(self, *args, **kwargs):
+        sd = super().state_dict(*args, **kwargs)  # TorchRL's: the transforms only
+        for key, value in self.base_env.state_dict().items():
+            sd[f"base_env.{key}"] = value
+        return sd
+
+    def load_state_dict(self, state_dict, strict: bool = True, **kwargs):
+        base = {k.removeprefix("base_env."): v for k, v in state_dict.items() if k.startswith("base_env.")}
+        rest = {k: v for k, v in state_dict.items() if not k.startswith("base_env.")}
+        if strict and not base:
+            raise ValueError("this state dict has no base_env entries: not a BFCEnv state dict")
+        self.base_env.load_state_dict(base, strict=strict)
+        self.transform.load_state_dict(rest, strict=strict, **kwargs)
 
     def set_seed(self, seed: int | None = None, static_seed: bool = False):
         out = super().set_seed(seed, static_seed=static_seed)
         if seed is not None:
-            for i, t in enumerate(self.transform):
+            for t in self.transform:
                 if isinstance(t, BatchedTransform):
-                    t.set_seed(seed + 7919 * (i + 1))
+                    t.set_seed(transform_seed(seed, t))
         return out
 
 

@@ -1,0 +1,51 @@
+"""The protocol inside training: fixed starts in the air, the deterministic policy, the one judge.
+
+It flies through `run_flights` only: training never imports the classical controllers.
+"""
+
+from __future__ import annotations
+
+import torch
+from omegaconf import OmegaConf
+
+from bfc import keys
+from bfc.evaluation.flights import run_flights
+from bfc.evaluation.judge import judge
+from bfc.evaluation.metrics import tilt_degrees
+from bfc.evaluation.protocol import protocol_starts
+from bfc.factory import make_env
+
+STEADY_SECONDS = 2.0  # the hover errors are averaged over the last 2 s of each flight
+
+
+class ProtocolEvaluator:
+    """Flies a policy from `cfg.eval`'s starts (validation starts during training) and returns the
+    `eval/*` metrics: success rate, position and tilt error over the last 2 s of the flights that
+    did not crash, crash rate."""
+
+    def __init__(self, cfg):
+        e = cfg.eval
+        eval_cfg = OmegaConf.merge(cfg, {"env": {"episode_seconds": e.seconds + 1.0}})
+        self.env = make_env(eval_cfg, num_envs=e.num_starts, samplers=False, noise={"kind": "none"}, given_starts=True)
+        self.env.set_seed(e.seed)
+        self.starts = protocol_starts(e.num_starts, e.seed)
+        self.steps = round(e.seconds / self.env.base_env.dt)
+        self.threshold, self.hold_seconds = e.threshold, e.hold_seconds
+
+    def __call__(self, actor) -> dict[str, float]:
+        flights = run_flights(self.env, actor, self.starts, self.steps)
+        verdict = judge(flights, self.threshold, self.hold_seconds)
+        tail = slice(-round(STEADY_SECONDS / self.env.base_env.dt), None)
+        err = (flights.get(keys.POSITION) - flights.get(keys.GOAL))[:, tail].norm(dim=-1)
+        tilt = tilt_degrees(flights.get(keys.QUATERNION)[:, tail])
+        survived = flights.get("alive")[:, -1]
+        pick = survived if bool(survived.any()) else torch.ones_like(survived)
+        return {
+            "eval/success_rate": verdict.success.float().mean().item(),
+            "eval/position_error": err[pick].mean().item(),
+            "eval/attitude_error": tilt[pick].mean().item(),
+            "eval/crash_rate": 1.0 - survived.float().mean().item(),
+        }
+
+    def close(self) -> None:
+        self.env.close()

@@ -1,0 +1,338 @@
+"""The training runner, in the shape of rsl_rl's OnPolicyRunner: learn / evaluate / save / load / log.
+
+Everything a run writes goes under its run directory:
+    tb/                      TensorBoard events (a resumed run appends here)
+    config.yaml              the resolved config
+    checkpoints/last.pt      the latest checkpoint (atomic: written to a temporary name, then renamed)
+    checkpoints/previous.pt  the one before it: a resume falls back to it if last.pt is unreadable
+    policy.pt                the deployable policy: the best in-training evaluation on the validation
+                             starts (highest success rate, then lowest eval/position_error);
+                             checkpoint.keep_best=false: the latest evaluated policy
+    policy_last.pt           the policy at the end of training
+    summary.json             frames, wall-clock, evaluation history, when 0.905 and 0.99 were first reached
+
+A checkpoint is built from public state only: the models', the optimizer's and the loss's
+`state_dict()`, the collector's `state_dict()` (env, transforms and the in-flight tensordict: see
+ResumableCollector) and torch's RNG state.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import sys
+import time
+from pathlib import Path
+
+import torch
+from omegaconf import OmegaConf
+
+from bfc import keys
+from bfc.collectors import episode_stats, make_collector
+from bfc.evaluation.evaluator import ProtocolEvaluator
+from bfc.factory import find_transform, make_env
+from bfc.policy import atomic_save, save_policy
+from bfc.training.ppo import make_loss, make_models, ppo_update
+from bfc.transforms import ControlledStartingState, JumpingDistribution, PolicyObservation
+
+PAPER_SUCCESS = 0.905
+CHECKPOINT = Path("checkpoints") / "last.pt"
+PREVIOUS = Path("checkpoints") / "previous.pt"
+
+
+def css_figure(css: ControlledStartingState):
+    """The CSS square values as a heat map (a pyplot-free Figure, for TensorBoard)."""
+    from bfc.evaluation.plots import subplots
+
+    grid = css.value_grid.numpy()
+    r = css.xy_range
+    fig, ax = subplots(figsize=(4, 3.4))
+    im = ax.imshow(grid, origin="lower", extent=(-r, r, -r, r), cmap="viridis")
+    ax.set_xlabel("x (m)")
+    ax.set_ylabel("y (m)")
+    ax.set_title("CSS square values (mean reward)")
+    fig.colorbar(im, ax=ax)
+    fig.tight_layout()
+    return fig
+
+
+def hparams(cfg) -> dict:
+    return {
+        "variant": cfg.variant,
+        "jd": cfg.jd.enabled,
+        "css": cfg.css.enabled,
+        "tdts": cfg.tdts.enabled,
+        "seed": cfg.seed,
+        "control_hz": cfg.env.control_hz,
+        "num_envs": cfg.env.num_envs,
+        "total_frames": cfg.collector.total_frames,
+        "frames_per_batch": cfg.collector.frames_per_batch,
+        "loss": cfg.loss.kind,
+        "gamma": cfg.loss.gamma,
+        "lmbda": cfg.loss.lmbda,
+        "lr": cfg.optim.lr,
+        "noise": cfg.noise.kind,
+    }
+
+
+def read_checkpoint(run_dir: Path) -> dict | None:
+    """The newest readable checkpoint of a run (None for a new run). An unreadable last.pt is
+    reported and the previous checkpoint used; with no readable one left, a ValueError."""
+    last, previous = run_dir / CHECKPOINT, run_dir / PREVIOUS
+    if not last.exists() and not previous.exists():
+        return None
+    problems = []
+    for path in (last, previous):
+        if not path.exists():
+            continue
+        try:
+            ckpt = torch.load(path, weights_only=True)
+            if not isinstance(ckpt, dict) or "collector" not in ckpt:
+                raise ValueError("not a bfc training checkpoint")
+        except Exception as err:  # noqa: BLE001 - a truncated or foreign file: fall back one step
+            problems.append(f"{path} is unreadable ({str(err).splitlines()[0][:120]})")
+            continue
+        if problems:
+            print(f"warning: {problems[0]}; resuming from {path} (one checkpoint earlier)", file=sys.stderr)
+        return ckpt
+    raise ValueError(f"cannot resume {run_dir}: " + "; ".join(problems))
+
+
+class Runner:
+    """Builds everything a run needs from its config and trains it; `train(cfg, run_dir)` is
+    `Runner(cfg, run_dir).learn()`. A run directory that holds a checkpoint is resumed."""
+
+    def __init__(self, cfg, run_dir):
+        self.cfg, self.run_dir = cfg, Path(run_dir)
+        self.run_dir.mkdir(parents=True, exist_ok=True)
+        torch.manual_seed(cfg.seed)
+        self.env = make_env(cfg, seed=cfg.seed)
+        self.obs = find_transform(self.env, PolicyObservation)
+        self.actor, self.critic = make_models(cfg, self.obs.size, action_spec=self.env.action_spec)
+        self.loss_module, self.advantage = make_loss(cfg, self.actor, self.critic)
+        self.optimizer = torch.optim.Adam(self.loss_module.parameters(), lr=cfg.optim.lr)
+        self.jd = find_transform(self.env, JumpingDistribution)
+        self.css = find_transform(self.env, ControlledStartingState)
+        self.evaluator = ProtocolEvaluator(cfg)
+        fpb = int(cfg.collector.frames_per_batch)
+        self.total = -(-int(cfg.collector.total_frames) // fpb) * fpb  # whole batches
+        self.collector = make_collector(self.env, self.actor, fpb, self.total)
+        self.frames, self.batches, self.wall = 0, 0, 0.0
+        self.history: list[dict] = []
+        self.best, self.best_error = -1.0, math.inf
+        self.timing = {"collect_seconds": 0.0, "update_seconds": 0.0, "batches": 0}  # this process only
+        self.logger = None
+
+    # ------------------------------------------------------------------ save / load
+    def state_dict(self) -> dict:
+        return {
+            "frames": self.frames,
+            "batches": self.batches,
+            "wall": self.wall,
+            "history": self.history,
+            "best": self.best,
+            "best_error": self.best_error,
+            "actor": self.actor.state_dict(),
+            "critic": self.critic.state_dict(),
+            "optimizer": self.optimizer.state_dict(),
+            "loss": self.loss_module.state_dict(),
+            "collector": self.collector.state_dict(),
+            "torch_rng": torch.get_rng_state(),
+        }
+
+    def save(self, path=None) -> None:
+        """Write a checkpoint atomically; the one it replaces is kept as previous.pt."""
+        path = Path(path) if path is not None else self.run_dir / CHECKPOINT
+        path.parent.mkdir(parents=True, exist_ok=True)
+        if path.exists():
+            path.replace(path.with_name(PREVIOUS.name))
+        atomic_save(self.state_dict(), path)
+
+    def load(self, ckpt: dict) -> None:
+        self.actor.load_state_dict(ckpt["actor"])
+        self.critic.load_state_dict(ckpt["critic"])
+        self.optimizer.load_state_dict(ckpt["optimizer"])
+        self.loss_module.load_state_dict(ckpt["loss"], strict=False)
+        self.frames, self.batches, self.wall = int(ckpt["frames"]), int(ckpt["batches"]), float(ckpt["wall"])
+        self.history, self.best = list(ckpt["history"]), float(ckpt["best"])
+        self.best_error = float(ckpt.get("best_error", math.inf))
+        self.collector.load_state_dict(ckpt["collector"])
+        torch.set_rng_state(ckpt["torch_rng"])
+
+    def write_policy(self, path: Path) -> None:
+        save_policy(
+            path,
+            self.actor,
+            model=OmegaConf.to_container(self.cfg.model, resolve=True),
+            env=OmegaConf.to_container(self.cfg.env, resolve=True),
+            observation={"size": self.obs.size, "include_acceleration": self.obs.include_acceleration},
+            info={"frames": self.frames, "wall_seconds": round(self.wall, 1), "seed": int(self.cfg.seed)},
+        )
+
+    # ------------------------------------------------------------------ log / evaluate
+    def log(self, metrics: dict, step: int) -> None:
+        if self.logger is not None:
+            for k, v in metrics.items():
+                if isinstance(v, (int, float)) and math.isfinite(v):
+                    self.logger.log_scalar(k, v, step=step)
+
+    def evaluate(self) -> dict:
+        """The protocol on the validation starts; keeps policy.pt as the best so far."""
+        t0 = time.perf_counter()
+        metrics = self.evaluator(self.actor)
+        metrics["time/eval_seconds"] = time.perf_counter() - t0
+        self.history.append({"frames": self.frames, "wall_seconds": round(self.wall, 1), **metrics})
+        self.log(metrics, self.frames)
+        # Success saturates at 1.0 early, so ties are common: among them the more precise hover wins.
+        better = (metrics["eval/success_rate"], -metrics["eval/position_error"]) >= (self.best, -self.best_error)
+        if better:
+            self.best, self.best_error = metrics["eval/success_rate"], metrics["eval/position_error"]
+        if better or not self.cfg.checkpoint.keep_best:
+            self.write_policy(self.run_dir / "policy.pt")
+        return metrics
+
+    def first_reach(self, level: float):
+        for h in self.history:
+            if h["eval/success_rate"] >= level:
+                return {"frames": h["frames"], "wall_seconds": h["wall_seconds"]}
+        return None
+
+    # ------------------------------------------------------------------ learn
+    def learn(self) -> dict:
+        """Train to collector.total_frames (from the checkpoint, if any) and return the summary."""
+        cfg, run_dir = self.cfg, self.run_dir
+        ckpt = read_checkpoint(run_dir)
+        if ckpt is None:
+            (run_dir / "config.yaml").write_text(OmegaConf.to_yaml(cfg, resolve=True))
+        elif int(ckpt["frames"]) >= self.total and (run_dir / "summary.json").is_file():
+            print(f"{run_dir} already finished ({int(ckpt['frames'])} frames): nothing to resume")
+            return json.loads((run_dir / "summary.json").read_text())
+        else:
+            self.load(ckpt)
+        if cfg.logger.tensorboard:
+            from torchrl.record.loggers.tensorboard import TensorboardLogger
+
+            self.logger = TensorboardLogger(exp_name="tb", log_dir=str(run_dir))
+            if ckpt is None:
+                text = "```\n" + OmegaConf.to_yaml(cfg, resolve=True) + "\n```"
+                self.logger.experiment.add_text("config", text, 0)
+
+        progress = None
+        if cfg.logger.progress:
+            from tqdm import tqdm
+
+            progress = tqdm(total=self.total, initial=self.frames, unit="frames", unit_scale=True, dynamic_ncols=True)
+        e, c = cfg.eval, cfg.checkpoint
+        next_eval = (self.frames // e.interval_frames + 1) * e.interval_frames
+        next_ckpt = (self.frames // c.interval_frames + 1) * c.interval_frames
+        last_success = self.history[-1]["eval/success_rate"] if self.history else float("nan")
+        if ckpt is None:
+            last_success = self.evaluate()["eval/success_rate"]  # the untrained policy, at frame 0
+
+        t_batch = time.perf_counter()
+        for data in self.collector:
+            t_collected = time.perf_counter()
+            metrics = self._update(data)
+            t_updated = time.perf_counter()
+            self.wall += t_updated - t_batch
+            n = data.numel()
+            metrics.update(self._batch_metrics(data, t_batch, t_collected, t_updated))
+            if self.batches % cfg.logger.log_interval == 0:
+                self.log(metrics, self.frames)
+            if self.frames >= next_eval or self.frames >= self.total:
+                last_success = self.evaluate()["eval/success_rate"]
+                next_eval += e.interval_frames
+                if self.css is not None and self.logger is not None:
+                    self.logger.experiment.add_figure("css/square_values", css_figure(self.css), self.frames)
+            if self.frames >= next_ckpt or self.frames >= self.total:
+                self.save()
+                next_ckpt += c.interval_frames
+            if progress is not None:
+                progress.update(n)
+                progress.set_postfix(fps=f"{metrics['time/fps']:.0f}", success=f"{last_success:.2f}", refresh=False)
+            torch.set_num_threads(1)  # collection: MuJoCo's threads get the cores
+            t_batch = time.perf_counter()
+            if self.frames >= self.total:
+                break
+        if progress is not None:
+            progress.close()
+        return self._finish()
+
+    def _update(self, data) -> dict:
+        cfg = self.cfg
+        n = data.numel()
+        self.frames += n
+        self.batches += 1
+        torch.set_num_threads(cfg.torch_threads)  # the update: torch gets the cores
+        if cfg.optim.anneal_lr:  # linear decay to 0 at the last frame (CleanRL's recipe)
+            for group in self.optimizer.param_groups:
+                group["lr"] = cfg.optim.lr * max(0.0, 1.0 - (self.frames - n) / self.total)
+        metrics = ppo_update(data, self.loss_module, self.advantage, self.optimizer, cfg)
+        metrics["train/lr"] = self.optimizer.param_groups[0]["lr"]
+        self.collector.update_policy_weights_()
+        return metrics
+
+    def _batch_metrics(self, data, t_batch: float, t_collected: float, t_updated: float) -> dict:
+        n = data.numel()
+        metrics = episode_stats(data)
+        metrics["train/reward"] = data.get(("next", keys.REWARD)).mean().item()
+        metrics["time/fps"] = n / (t_updated - t_batch)
+        metrics["time/collect_seconds"] = t_collected - t_batch
+        metrics["time/update_seconds"] = t_updated - t_collected
+        self.timing["collect_seconds"] += t_collected - t_batch
+        self.timing["update_seconds"] += t_updated - t_collected
+        self.timing["batches"] += 1
+        metrics["time/wall_seconds"] = self.wall
+        metrics["train/policy_std"] = self.actor.module[0].module.log_std.exp().mean().item()
+        metrics["train/physics_failures"] = float(self.env.base_env.physics_failures)
+        metrics["train/jd_probability"] = self.jd.probability if self.jd is not None else 0.0
+        return metrics
+
+    def _finish(self) -> dict:
+        run_dir, cfg = self.run_dir, self.cfg
+        self.write_policy(run_dir / "policy_last.pt")
+        if not (run_dir / "policy.pt").exists():
+            self.write_policy(run_dir / "policy.pt")
+        summary = {
+            "frames": self.frames,
+            "wall_seconds": round(self.wall, 1),
+            "final_success_rate": self.history[-1]["eval/success_rate"] if self.history else None,
+            "best_success_rate": self.best,
+            "first_reached_0.905": self.first_reach(PAPER_SUCCESS),
+            "first_reached_0.99": self.first_reach(0.99),
+            "collection_frames_per_second": round(
+                self.timing["batches"] * cfg.collector.frames_per_batch / max(self.timing["collect_seconds"], 1e-9)
+            ),
+            "update_seconds_per_batch": round(self.timing["update_seconds"] / max(self.timing["batches"], 1), 3),
+            "history": self.history,
+        }
+        (run_dir / "summary.json").write_text(json.dumps(summary, indent=1))
+        if self.logger is not None:
+            final = {"hparam/success_rate": summary["final_success_rate"] or 0.0, "hparam/best_success_rate": self.best}
+            self.logger.experiment.add_hparams(hparams(cfg), final, run_name="hparams")
+            self.logger.experiment.flush()
+        return summary
+
+    def close(self) -> None:
+        self.collector.shutdown()
+        self.env.close()
+        self.evaluator.close()
+
+
+def train(cfg, run_dir) -> dict:
+    """Train (or resume, when `run_dir` holds a checkpoint) and return the run's summary.
+
+    Collection runs with one torch thread (MuJoCo's rollout threads own the cores) and the PPO
+    update with `torch_threads` (measured fastest on 2 cores: bench/update_time.py); the caller's
+    thread count is restored on return.
+    """
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    runner = None
+    try:
+        runner = Runner(cfg, run_dir)
+        return runner.learn()
+    finally:
+        if runner is not None:
+            runner.close()
+        torch.set_num_threads(threads)

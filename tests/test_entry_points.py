@@ -1,0 +1,225 @@
+"""What a new user meets first: the import paths, composing configs, clear errors, no global side effects."""
+
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+import pytest
+import torch
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def fresh_python(code: str, timeout: int = 300) -> subprocess.CompletedProcess:
+    """Run `code` in a new interpreter (so import order is the test's, not pytest's)."""
+    return subprocess.run(
+        [sys.executable, "-c", textwrap.dedent(code)], cwd=ROOT, capture_output=True, text=True, timeout=timeout
+    )
+
+
+def cli(script: str, *args, timeout: int = 300) -> subprocess.CompletedProcess:
+    return subprocess.run(
+        [sys.executable, script, *args, "hydra.run.dir=/tmp/bfc-test-cli"],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=timeout,
+    )
+
+
+def test_make_env_and_fly_are_functions_in_any_import_order():
+    r = fresh_python(
+        """
+        import bfc.training, bfc.evaluation, bfc.factory
+        import bfc
+        from omegaconf import OmegaConf
+        from bfc.config import Config
+        cfg = OmegaConf.structured(Config)
+        cfg.env.num_envs = 2
+        for _ in range(3):
+            env = bfc.make_env(cfg, seed=0)
+            assert env.reset()["observation"].shape == (2, 22)
+            env.close()
+        import bfc.evaluation.flights
+        from bfc.evaluation import fly, protocol_starts
+        assert callable(bfc.evaluation.fly) and bfc.evaluation.fly is fly
+        for _ in range(2):
+            assert fly("lee", protocol_starts(2), seconds=0.1).shape == (2, 25)
+        print("ok")
+        """
+    )
+    assert r.returncode == 0 and r.stdout.strip() == "ok", r.stderr[-2000:]
+
+
+def test_compose_works_from_a_fresh_interpreter_after_importing_bfc_config():
+    r = fresh_python(
+        """
+        import bfc.config
+        cfg = bfc.config.compose(["+ablation=jd", "seed=4"])
+        assert cfg.variant == "jd" and cfg.seed == 4 and not cfg.css.enabled
+        # Hydra's own compose finds the registered schema too
+        from hydra import compose, initialize_config_dir
+        with initialize_config_dir(config_dir=str(bfc.config.CONF_DIR), version_base="1.3"):
+            assert compose("config").env.num_envs == 256
+        print(bfc.config.compose([], config_name="evaluate").eval.seed)
+        """
+    )
+    assert r.returncode == 0, r.stderr[-2000:]
+    assert r.stdout.strip() == "0"  # evaluate.py reports on the test starts
+
+
+@pytest.mark.parametrize(
+    "override, key",
+    [("+env.num_envz=3", "env.num_envz"), ("+preset=paper", "preset"), ("+loss.minibatchsize=7", "loss.minibatchsize")],
+)
+def test_a_plus_override_that_names_no_key_is_an_error(override, key):
+    from bfc.config import compose
+
+    with pytest.raises(ValueError, match=f"unknown config key '{key}'"):
+        compose([override])
+
+
+def test_train_rejects_an_unknown_plus_key_with_a_one_line_error():
+    r = cli("train.py", "+env.num_envz=3")
+    assert r.returncode == 2
+    assert r.stderr.strip().splitlines() == [r.stderr.strip()]  # one line
+    assert "unknown config key 'env.num_envz'" in r.stderr and "num_envs" in r.stderr
+
+
+@pytest.mark.parametrize(
+    "override, message",
+    [
+        ("env.num_envs=0", "env.num_envs must be an integer >= 1, got 0"),
+        ("env.goal=[nan,0,1.5]", "env.goal must be 3 finite numbers"),
+        ("loss.num_minibatches=0", "loss.num_minibatches must be in [1, collector.frames_per_batch=16384]"),
+        ("eval.threshold=0", "eval.threshold must be > 0"),
+    ],
+)
+def test_bad_training_values_exit_2_with_the_key_named(override, message):
+    small = [] if "num_envs" in override else ["env.num_envs=16"]
+    r = cli("train.py", override, "collector.total_frames=256", *small)
+    assert r.returncode == 2, r.stderr[-2000:]
+    assert message in r.stderr and "Traceback" not in r.stderr
+
+
+def test_a_smaller_batch_alone_is_a_valid_config():
+    from bfc.config import compose, minibatch_size, validate
+
+    cfg = compose(["collector.frames_per_batch=2048"])
+    validate(cfg)
+    assert minibatch_size(cfg) == 512  # follows the batch: 4 minibatches
+    cfg = compose(["loss.minibatch_size=1000"])
+    assert minibatch_size(cfg) == 1000
+
+
+def test_jd_decay_follows_the_run_length_unless_set():
+    from bfc.config import compose
+    from bfc.factory import find_transform, make_env
+    from bfc.transforms import JumpingDistribution
+
+    for overrides, expected in ((["collector.total_frames=3000000"], 3_000_000), (["jd.decay_frames=5"], 5)):
+        env = make_env(compose([*overrides, "env.num_envs=2"]))
+        assert find_transform(env, JumpingDistribution).decay_frames == expected
+        env.close()
+
+
+def test_a_nan_goal_is_named_as_a_goal_problem():
+    from bfc.evaluation import fly, protocol_starts
+
+    with pytest.raises(ValueError, match="goal must be finite"):
+        fly("lee", protocol_starts(2), goal=(float("nan"), 0.0, 1.5), seconds=0.1)
+
+
+def test_transform_seeds_do_not_depend_on_their_place_in_the_stack():
+    from bfc.config import compose
+    from bfc.factory import find_transform, make_env
+    from bfc.transforms import ControlledStartingState, JumpingDistribution
+
+    draws = {}
+    for tdts in ("true", "false"):
+        env = make_env(compose(["env.num_envs=8", f"tdts.enabled={tdts}"]), seed=5)
+        draws[tdts] = [
+            find_transform(env, cls).generator.get_state() for cls in (JumpingDistribution, ControlledStartingState)
+        ]
+        env.close()
+    assert all(torch.equal(a, b) for a, b in zip(draws["true"], draws["false"], strict=True))
+
+
+def test_env_state_dict_restores_a_rollout_bit_identically():
+    from bfc.config import compose
+    from bfc.factory import make_env
+
+    env = make_env(compose(["env.num_envs=4"]), seed=1)
+    td = env.reset()
+    for _ in range(5):
+        td = env.step_and_maybe_reset(td.set("action", torch.rand(4, 4) * 2 - 1))[1]
+    snapshot = {k: v.clone() if isinstance(v, torch.Tensor) else v for k, v in env.state_dict().items()}
+    actions = torch.rand(30, 4, 4) * 2 - 1
+
+    def roll(td):
+        out = []
+        for a in actions:
+            data, td = env.step_and_maybe_reset(td.clone().set("action", a))
+            out.append(data["next", "observation"])
+        return torch.stack(out)
+
+    first = roll(td.clone())
+    env.load_state_dict(snapshot)
+    assert torch.equal(roll(td.clone()), first)
+    env.close()
+
+
+def test_library_code_leaves_backend_and_threads_alone(tmp_path):
+    r = fresh_python(
+        """
+        import sys
+        import matplotlib
+        raw = lambda: dict.__getitem__(matplotlib.rcParams, "backend")  # without resolving it
+        before = raw()
+        import bfc.evaluation.report, bfc.evaluation.plots, bfc.training
+        assert "matplotlib.pyplot" not in sys.modules, "library code imported pyplot"
+        print(raw() == before)
+        """
+    )
+    assert r.returncode == 0 and r.stdout.strip() == "True", r.stderr[-2000:]
+
+    from bfc.training import train
+
+    from .training.helpers import TINY, compose_cfg
+
+    torch.set_num_threads(2)
+    train(compose_cfg([*TINY, "collector.total_frames=512", "env.episode_seconds=0.2"]), tmp_path)
+    assert torch.get_num_threads() == 2
+
+
+def test_training_never_imports_the_classical_controllers(tmp_path):
+    r = fresh_python(
+        f"""
+        import sys
+        from bfc.training import train
+        from tests.training.helpers import TINY, compose_cfg
+        train(compose_cfg([*TINY, "collector.total_frames=512", "env.episode_seconds=0.2"]), {str(tmp_path)!r})
+        loaded = [m for m in ("bfc.controllers", "osqp", "scipy") if m in sys.modules]
+        print(loaded)
+        """
+    )
+    assert r.returncode == 0, r.stderr[-2000:]
+    assert r.stdout.strip().splitlines()[-1] == "[]"
+
+
+@pytest.mark.parametrize(
+    "args, message",
+    [
+        (["policy=pretrained/policy.pt", "runs=/tmp"], "runs only apply with suite=paper"),
+        (["suite=paper", "policy=pretrained/policy.pt", "noise.kind=ou"], "noise do not apply with suite=paper"),
+        (["suite=paper", "policy=pretrained/policy.pt", "eval.hold_seconds=20"], "eval.hold_seconds must be in"),
+        (["policy=pretrained/policy.pt", "+eval.interval_frames=5"], "unknown config key 'eval.interval_frames'"),
+        (["suite=robust", "policy=pretrained/policy.pt"], "suite must be one of paper"),
+    ],
+)
+def test_evaluate_honours_or_rejects_every_key(args, message):
+    """(A key that is not in the schema at all, without `+`, is Hydra's own error: see test_configs.)"""
+    r = cli("evaluate.py", *args)
+    assert r.returncode == 2, r.stderr[-2000:]
+    assert message in r.stderr and "Traceback" not in r.stderr

@@ -1,0 +1,187 @@
+"""ONNX export (bfc/export.py): parity with the torch policy, a protocol flight, the CLI."""
+
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+from tensordict import TensorDict
+from torchrl.envs.utils import ExplorationType, set_exploration_type
+
+ort = pytest.importorskip("onnxruntime")
+pytest.importorskip("onnx")
+
+from bfc.envs.params import AirframeParams  # noqa: E402
+from bfc.export import OnnxController, main, policy_settings, read_metadata  # noqa: E402
+from bfc.policy import export_onnx, load_policy, make_actor, save_policy  # noqa: E402
+from bfc.transforms import MotorSpeedAction, PolicyObservation  # noqa: E402
+
+ROOT = Path(__file__).resolve().parents[1]
+PRETRAINED = ROOT / "pretrained" / "policy.pt"
+# On motor speed / hover speed (the speed map's action units): float32 round-off is ~1e-6.
+TOLERANCE = 1e-5
+
+
+def tiny_policy(path, action_map="speed"):
+    """A random 2x16 ELU policy with accelerations in its observation, on a heavier airframe."""
+    torch.manual_seed(0)
+    actor = make_actor(28, [16, 16], "elu", 0.2)
+    with torch.no_grad():  # undo the near-zero last layer, so the outputs spread over the action range
+        for p in actor.module[0].module.mean.parameters():
+            p.normal_(0.0, 0.2)
+    airframe = {"body_mass": 0.8, "max_rotor_speed": 900.0}
+    model = {"actor_hidden": [16, 16], "critic_hidden": [8], "activation": "elu", "init_std": 0.2}
+    if action_map is not None:
+        model["action_map"] = action_map
+    save_policy(
+        path,
+        actor,
+        model={**model, "include_acceleration": True},
+        env={"control_hz": 250.0, "airframe": airframe},
+        observation={"size": 28, "include_acceleration": True},
+        info={},
+    )
+    return path
+
+
+@pytest.fixture(scope="module")
+def models(tmp_path_factory):
+    d = tmp_path_factory.mktemp("onnx")
+    tiny = tiny_policy(d / "tiny.pt")
+    return {
+        "pretrained": (PRETRAINED, export_onnx(PRETRAINED, d / "pretrained.onnx")),
+        "tiny": (tiny, export_onnx(tiny, d / "tiny.onnx")),
+    }
+
+
+def random_inputs(n, hover, max_speed, seed=0):
+    """Odometry around the protocol's states (and beyond), any goal, previous commands over [0, max]."""
+    g = torch.Generator().manual_seed(seed)
+    scale = torch.tensor([2.0, 2, 2, 2, 2, 2, 5, 5, 5, 0.7, 0.7, 3.14, 3, 3, 3, 20, 20, 20])
+    odometry = (2 * torch.rand(n, 18, generator=g) - 1) * scale
+    odometry[:, 2] += 1.5
+    goal = torch.tensor([0.0, 0.0, 1.5]) + 0.5 * torch.randn(n, 3, generator=g)
+    previous = hover * (0.6 + 0.8 * torch.rand(n, 4, generator=g))
+    previous[: n // 10] = max_speed * torch.rand(n // 10, 4, generator=g)  # some far from hover
+    previous[n // 10 : n // 5] = hover  # after a reset
+    return odometry, goal, previous
+
+
+def torch_reference(policy_path, odometry, goal, previous):
+    """What the env + the deterministic torch actor command: PolicyObservation.build, the actor's
+    mean, MotorSpeedAction.to_command, the env's clip to [0, max]."""
+    actor, payload = load_policy(policy_path)
+    s = policy_settings(payload)
+    action = MotorSpeedAction(s["hover_speed"], s["max_rotor_speed"], s["action_map"])
+    observation = PolicyObservation(
+        len(odometry),
+        s["hover_speed"],
+        include_acceleration=s["include_acceleration"],
+        command_to_action=action.to_action,
+    )
+    obs = observation.build(odometry, goal, action.to_action(previous).clamp(-1, 1))
+    with torch.no_grad(), set_exploration_type(ExplorationType.DETERMINISTIC):
+        mean = actor(TensorDict({"observation": obs}, batch_size=[len(obs)])).get("action")
+    return action.to_command(mean).clamp(0.0, s["max_rotor_speed"]), s
+
+
+@pytest.mark.parametrize("name", ["pretrained", "tiny"])
+def test_onnx_matches_the_torch_policy(models, name):
+    policy_path, onnx_path = models[name]
+    _, payload = load_policy(policy_path)
+    s = policy_settings(payload)
+    odometry, goal, previous = random_inputs(1000, s["hover_speed"], s["max_rotor_speed"])
+    expected, s = torch_reference(policy_path, odometry, goal, previous)
+    session = ort.InferenceSession(str(onnx_path), providers=["CPUExecutionProvider"])
+    assert [i.name for i in session.get_inputs()] == ["odometry", "goal", "previous_motor_speeds"]
+    assert [o.name for o in session.get_outputs()] == ["motor_speeds"]
+    feeds = {"odometry": odometry.numpy(), "goal": goal.numpy(), "previous_motor_speeds": previous.numpy()}
+    (got,) = session.run(None, feeds)
+    assert got.shape == (1000, 4) and got.dtype == np.float32
+    diff = np.abs(got - expected.numpy()).max() / s["hover_speed"]
+    assert diff <= TOLERANCE, f"max |onnx - torch| = {diff:.2e} hover speeds"
+    # the comparison is not all saturated motors: most commands lie strictly inside (0, max)
+    inside = (expected > 0) & (expected < s["max_rotor_speed"])
+    assert inside.float().mean() > 0.5
+    assert got.min() >= 0.0 and got.max() <= s["max_rotor_speed"]
+    # dynamic batch: one row gives the same numbers
+    (one,) = session.run(None, {k: v[:1] for k, v in feeds.items()})
+    np.testing.assert_allclose(one, got[:1], rtol=0, atol=TOLERANCE * s["hover_speed"])
+
+
+def test_metadata_records_how_to_fly(models, tmp_path):
+    meta = read_metadata(models["pretrained"][1])
+    assert meta["control_hz"] == 100.0 and meta["action_map"] == "thrust"
+    assert meta["hover_speed"] == pytest.approx(AirframeParams().hover_speed)
+    assert meta["max_rotor_speed"] == 838.0 and meta["policy_format"] == "bfc-policy-v1"
+    meta = read_metadata(models["tiny"][1])
+    assert meta["control_hz"] == 250.0 and meta["action_map"] == "speed" and meta["include_acceleration"]
+    assert meta["hover_speed"] == pytest.approx(AirframeParams(body_mass=0.8).hover_speed)
+    assert meta["max_rotor_speed"] == 900.0
+    # files written before `action_map` existed were trained with the speed map
+    legacy = export_onnx(tiny_policy(tmp_path / "old.pt", action_map=None), tmp_path / "old.onnx")
+    assert read_metadata(legacy)["action_map"] == "speed"
+
+
+def test_controller_feeds_back_its_command_and_resets(models):
+    policy_path, onnx_path = models["tiny"]
+    controller = OnnxController(onnx_path)
+    hover, top = controller.hover_speed, controller.max_rotor_speed
+    odometry, goal, _ = random_inputs(5, hover, top, seed=1)
+
+    def call(odom, step_count=None):
+        td = TensorDict({"odometry": odom, "goal": goal[: len(odom)]}, batch_size=[len(odom)])
+        if step_count is not None:
+            td.set("step_count", step_count)
+        return controller(td).get("action")
+
+    first = call(odometry)
+    expected, _ = torch_reference(policy_path, odometry, goal, torch.full((5, 4), hover))
+    torch.testing.assert_close(first, expected, rtol=0, atol=TOLERANCE * hover)
+    second = call(odometry)  # now the previous command is `first`
+    expected, _ = torch_reference(policy_path, odometry, goal, first)
+    torch.testing.assert_close(second, expected, rtol=0, atol=TOLERANCE * hover)
+    controller.reset()
+    torch.testing.assert_close(call(odometry), first)
+    call(odometry[:3])  # another batch size: a new flight from hover
+    torch.testing.assert_close(call(odometry)[:3], first[:3])  # and back: again from hover
+    # per-env resets, as an auto-resetting runner with a StepCounter reports them
+    call(odometry)
+    mixed = call(odometry, step_count=torch.tensor([[0], [3], [0], [3], [3]]))
+    torch.testing.assert_close(mixed[[0, 2]], first[[0, 2]])
+    assert not torch.allclose(mixed[[1, 3, 4]], first[[1, 3, 4]])
+
+
+def test_protocol_flight_matches_the_torch_policy(models):
+    from bfc.evaluation import fly, protocol_starts, success
+
+    starts = protocol_starts(20, seed=0)
+    controller = OnnxController(models["pretrained"][1])
+    by_torch = fly(str(PRETRAINED), starts, seconds=10.0)
+    by_onnx = fly(controller, starts, seconds=10.0, control_hz=controller.control_hz)
+    assert by_onnx.shape == by_torch.shape  # same rate: 1000 steps at 100 Hz
+    assert success(by_onnx).tolist() == success(by_torch).tolist()
+    assert success(by_onnx).all()
+    position = (by_onnx.get(("state", "position")) - by_torch.get(("state", "position"))).abs().max()
+    assert position < 1e-3
+
+
+def test_cli_writes_a_model_and_fails_cleanly(tmp_path, capsys):
+    out = tmp_path / "sub" / "policy.onnx"
+    assert main([str(PRETRAINED), str(out)]) == 0
+    assert out.is_file() and "100 Hz" in capsys.readouterr().out
+    assert main([str(PRETRAINED), str(tmp_path)]) == 2  # a directory is no output path
+    assert capsys.readouterr().err.count("\n") == 1
+    missing = subprocess.run(
+        [sys.executable, "-m", "bfc.export", str(tmp_path / "nope.pt"), str(tmp_path / "x.onnx")],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert missing.returncode == 2
+    lines = missing.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("error: no policy file at"), missing.stderr
+    assert not (tmp_path / "x.onnx").exists()
