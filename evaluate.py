@@ -4,12 +4,14 @@
     python evaluate.py policy=pretrained/policy.pt noise.kind=ou noise.std=0.05 noise.elements=position
     python evaluate.py controller=lee eval.num_starts=50
     python evaluate.py suite=paper policy=pretrained/policy.pt [runs=multirun/<date>/<time>]
+    python evaluate.py suite=robust policy=pretrained/policy.pt baselines=[lee,lee_i,mpc]
 
 The protocol's keys are the training config's `eval` section (eval.seed=0: the test starts that
 the docs report; training chooses policy.pt on eval.seed=1). A single evaluation writes
 results.json (success count and rate, per-start outcome and time to success, errors after
-success) and figures; suite=paper writes report.md. Every key is honoured or rejected in each
-mode; bad input ends with a one-line `error: ...` and exit status 2.
+success) and figures; suite=paper writes report.md, suite=robust robust.md (start sets harsh, any,
+ground and model mismatch and wind, bfc.evaluation.suites) with robust.png and robust.json.
+Every key is honoured or rejected in each mode; bad input ends with a one-line `error: ...` and exit status 2.
 """
 
 import json
@@ -47,14 +49,18 @@ def check(cfg) -> None:
         return
     if cfg.suite not in SUITES:
         raise ValueError(f"suite must be one of {', '.join(SUITES)}, got {cfg.suite!r}")
+    s = cfg.suite
     if cfg.policy is not None and cfg.controller is not None:
-        raise ValueError("suite=paper flies one policy= or controller= (the baselines go in baselines=[...])")
-    if cfg.policy is None and cfg.controller is None and cfg.runs is None:
-        raise ValueError("suite=paper needs policy=<path>, controller=<name> and/or runs=<directory of runs>")
+        raise ValueError(f"suite={s} flies one policy= or controller= (the baselines go in baselines=[...])")
+    if s == "robust" and cfg.runs is not None:
+        raise ValueError("runs only applies with suite=paper")
+    if cfg.policy is None and cfg.controller is None and (cfg.runs is None or s == "robust"):
+        more = " and/or runs=<directory of runs>" if s == "paper" else ""
+        raise ValueError(f"suite={s} needs policy=<path> or controller=<name>{more}")
     unused = [k for k in ("noise", "goal", "figures") if _changed(cfg, k)]
     if unused:
         raise ValueError(
-            f"{', '.join(unused)} do not apply with suite=paper (it flies the protocol's goal, its own noise "
+            f"{', '.join(unused)} do not apply with suite={s} (it flies the protocol's goal, its own "
             "conditions, and always writes its figures)"
         )
     if cfg.runs is not None and not Path(cfg.runs).is_dir():
@@ -69,6 +75,8 @@ def main(cfg) -> None:
     out = Path(HydraConfig.get().runtime.output_dir)
     try:
         check(cfg)
+        if cfg.suite == "robust":
+            return run_robust(cfg, out)
         if cfg.suite is not None:
             return run_suite(cfg, out)
         controller = cfg.controller or cfg.policy
@@ -113,6 +121,34 @@ def run_suite(cfg, out: Path) -> None:
     header = f"Controller: `{controller}`; runs: `{cfg.runs}`. Command: `python evaluate.py {' '.join(sys.argv[1:])}`."
     path = write_report(out, controller, cfg.runs, protocol=cfg.eval, header=header, baselines=list(cfg.baselines))
     print(f"report written to {path} in {time.perf_counter() - t0:.0f} s")
+
+
+def run_robust(cfg, out: Path) -> None:
+    from bfc.evaluation.suites import robust_figure, robust_results, robust_table
+
+    controller = cfg.controller or cfg.policy
+    label = cfg.controller or "bfc"
+    controllers = {label: controller, **{b: b for b in cfg.baselines if b != label}}
+    e = cfg.eval
+    t0 = time.perf_counter()
+    results = robust_results(controllers, num_starts=e.num_starts, seed=e.seed, protocol=e)
+    (out / "robust.json").write_text(json.dumps(results, indent=1))
+    robust_figure(results, out / "robust.png")
+    lines = [
+        "# Robustness: start sets, model mismatch and wind",
+        "",
+        f"Controller: `{controller}`. Command: `python evaluate.py {' '.join(sys.argv[1:])}`. "
+        f"{e.num_starts} starts per suite (seed {e.seed}), {e.seconds:g} s, success = within {e.threshold:g} m on "
+        f"every axis for {e.hold_seconds:g} s; hover error = median over the successful flights of the mean "
+        "distance to the goal over the last 2 s. Suites: bfc.evaluation.suites.",
+        "",
+        *robust_table(results),
+        "",
+        "![robustness](robust.png)",
+        "",
+    ]
+    (out / "robust.md").write_text("\n".join(lines))
+    print(f"robust.md written to {out} in {time.perf_counter() - t0:.0f} s")
 
 
 if __name__ == "__main__":

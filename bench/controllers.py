@@ -18,6 +18,7 @@ from pathlib import Path
 
 import torch
 
+from bfc.config import ProtocolConfig
 from bfc.controllers import LeeController, LeeGains, LinearMPC, MPCParams
 from bfc.envs import AirframeParams
 from bfc.evaluation.flights import PROTOCOL_HZ
@@ -37,6 +38,7 @@ def main() -> None:
         "bfc": args.policy,
         "mpc": "mpc",
         "lee": "lee",
+        "lee_i": "lee_i",
         "mpc_yaw0": LinearMPC(airframe, dt, MPCParams(yaw=0.0)),
         "lee_yaw0": LeeController(airframe, dt, LeeGains(yaw=0.0)),
     }
@@ -44,7 +46,13 @@ def main() -> None:
     out.mkdir(parents=True, exist_ok=True)
     print(f"# {platform.machine()}, torch {torch.__version__}; {args.starts} protocol starts; figures in {out}")
     t0 = time.perf_counter()
-    print("\n".join(line for line in controller_sections(controllers, out, args.starts) if not line.startswith("![")))
+    print(
+        "\n".join(
+            line
+            for line in controller_sections(controllers, out, ProtocolConfig(num_starts=args.starts))
+            if not line.startswith("![")
+        )
+    )
     print(f"all flights took {time.perf_counter() - t0:.0f} s")
 
 

@@ -12,7 +12,7 @@ import time
 import torch
 from omegaconf import OmegaConf
 
-from bfc.config import Config
+from bfc.config import Config, minibatch_size
 from bfc.factory import find_transform, make_env
 from bfc.training.ppo import make_loss, make_models, ppo_update
 from bfc.transforms import PolicyObservation
@@ -30,7 +30,7 @@ def main() -> None:
     obs = find_transform(env, PolicyObservation)
     steps = cfg.collector.frames_per_batch // cfg.env.num_envs
     c, lo = cfg.collector, cfg.loss
-    print(f"# batch {c.frames_per_batch} frames, {lo.epochs} epochs, minibatch {lo.minibatch_size}")
+    print(f"# batch {c.frames_per_batch} frames, {lo.epochs} epochs, minibatch {minibatch_size(cfg)}")
     print("| actor x2 | critic x2 | activation | torch threads | update (s) |")
     print("|---|---|---|---|---|")
     for size, act in [(s, a) for s in args.sizes for a in args.activations]:

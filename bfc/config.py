@@ -92,6 +92,10 @@ class ModelConfig:
 class CollectorConfig:
     total_frames: int = 10_000_000  # rounded up to whole batches
     frames_per_batch: int = 16_384
+    # Stop early once `stop_patience` consecutive in-training evaluations reach this success rate
+    # (e.g. 0.99): for a flying policy rather than a fixed budget. null: run total_frames.
+    stop_at_success: float | None = None
+    stop_patience: int = 3
 
 
 @dataclass
@@ -167,7 +171,7 @@ class Config:
     checkpoint: CheckpointConfig = field(default_factory=CheckpointConfig)
 
 
-SUITES = ("paper",)
+SUITES = ("paper", "robust")
 
 
 @dataclass
@@ -176,9 +180,9 @@ class EvaluateConfig:
 
     policy: str | None = None  # path to a policy.pt
     controller: str | None = None  # a classical controller name (bfc.evaluation.CONTROLLERS)
-    suite: str | None = None  # paper: protocol, accuracy, noise, waypoints, baselines (report.md)
+    suite: str | None = None  # paper: protocol, accuracy, noise, waypoints, baselines (report.md); robust: robust.md
     runs: str | None = None  # suite=paper: a directory of training runs for Table 2 and learning curves
-    baselines: list[str] = field(default_factory=lambda: ["mpc", "lee"])  # suite=paper: flown beside it
+    baselines: list[str] = field(default_factory=lambda: ["mpc", "lee"])  # suites: flown beside it
     figures: bool = True  # single evaluation: flight figures beside results.json
     goal: list[float] = field(default_factory=lambda: [0.0, 0.0, 1.5])  # single evaluation
     eval: ProtocolConfig = field(default_factory=ProtocolConfig)
@@ -270,6 +274,9 @@ def validate(cfg) -> None:
     _check(isinstance(num_envs, int) and num_envs >= 1, "env.num_envs", "an integer >= 1", num_envs)
     _check(c.total_frames > 0, "collector.total_frames", "> 0", c.total_frames)
     _check(c.frames_per_batch > 0, "collector.frames_per_batch", "> 0", c.frames_per_batch)
+    if c.stop_at_success is not None:
+        _check(0 <= c.stop_at_success <= 1, "collector.stop_at_success", "null or in [0, 1]", c.stop_at_success)
+    _check(c.stop_patience >= 1, "collector.stop_patience", ">= 1", c.stop_patience)
     _check(
         c.frames_per_batch % cfg.env.num_envs == 0,
         "collector.frames_per_batch",

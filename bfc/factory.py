@@ -13,7 +13,7 @@ from omegaconf import OmegaConf
 from torchrl.envs import Compose, RewardSum, StepCounter, TransformedEnv
 
 from bfc.config import jd_decay_frames
-from bfc.envs import QuadrotorEnv
+from bfc.envs import AirframeParams, QuadrotorEnv
 from bfc.transforms import (
     ControlledStartingState,
     GaussianOdometryNoise,
@@ -31,15 +31,19 @@ def _plain(node):
     return OmegaConf.to_container(node, resolve=True) if OmegaConf.is_config(node) else node
 
 
-def make_base_env(cfg, num_envs: int | None = None) -> QuadrotorEnv:
+def make_base_env(cfg, num_envs: int | None = None, airframe: dict | None = None) -> QuadrotorEnv:
+    """The base env; `airframe` overrides AirframeParams fields of the simulated body only."""
     e = cfg.env
+    flown = _plain(e.airframe) or {}
+    if airframe:
+        flown = {**flown, **dict(airframe)}
     return QuadrotorEnv(
         int(num_envs or e.num_envs),
         control_hz=e.control_hz,
         physics_dt=e.physics_dt,
         episode_seconds=e.episode_seconds,
         goal=tuple(e.goal),
-        airframe=_plain(e.airframe),
+        airframe=flown,
         reward=_plain(e.reward),
         termination=_plain(e.termination),
         start=_plain(e.start),
@@ -71,6 +75,7 @@ def make_env(
     given_starts: bool = False,
     policy_io: bool = True,
     seed: int | None = None,
+    airframe: dict | None = None,
 ) -> TransformedEnv:
     """Build the env for `cfg`.
 
@@ -78,9 +83,12 @@ def make_env(
     noise overrides `cfg.noise`; given_starts adds a GivenStarts transform (`env.transform`
     member) through which a caller places envs at chosen starts on the next reset;
     policy_io=False leaves out the policy's observation and action maps, for controllers that
-    read `"odometry"` and `"goal"` and command motor speeds in rad/s themselves.
+    read `"odometry"` and `"goal"` and command motor speeds in rad/s themselves;
+    airframe overrides AirframeParams fields of the flown body only (model mismatch): the policy's
+    observation and action maps keep the nominal airframe of `cfg.env.airframe`.
     """
-    base = make_base_env(cfg, num_envs)
+    base = make_base_env(cfg, num_envs, airframe)
+    nominal = AirframeParams(**(_plain(cfg.env.airframe) or {}))
     n, dt = base.num_envs, base.dt
     ts = []
     if samplers and cfg.tdts.enabled:
@@ -115,11 +123,11 @@ def make_env(
     if noise_t is not None:
         ts.append(noise_t)
     if policy_io:
-        action = MotorSpeedAction(base.hover_speed, base.max_rotor_speed, cfg.model.action_map)
+        action = MotorSpeedAction(nominal.hover_speed, nominal.max_rotor_speed, cfg.model.action_map)
         ts.append(
             PolicyObservation(
                 n,
-                base.hover_speed,
+                nominal.hover_speed,
                 include_acceleration=cfg.model.include_acceleration,
                 command_to_action=action.to_action,
             )

@@ -215,7 +215,8 @@ def test_training_never_imports_the_classical_controllers(tmp_path):
         (["suite=paper", "policy=pretrained/policy.pt", "noise.kind=ou"], "noise do not apply with suite=paper"),
         (["suite=paper", "policy=pretrained/policy.pt", "eval.hold_seconds=20"], "eval.hold_seconds must be in"),
         (["policy=pretrained/policy.pt", "+eval.interval_frames=5"], "unknown config key 'eval.interval_frames'"),
-        (["suite=robust", "policy=pretrained/policy.pt"], "suite must be one of paper"),
+        (["suite=storm", "policy=pretrained/policy.pt"], "suite must be one of paper, robust"),
+        (["suite=robust", "policy=pretrained/policy.pt", "runs=/tmp"], "runs only applies with suite=paper"),
     ],
 )
 def test_evaluate_honours_or_rejects_every_key(args, message):

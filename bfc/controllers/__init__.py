@@ -5,11 +5,11 @@ factories `(airframe, dt) -> Controller`.
 """
 
 from bfc.controllers.base import Controller, Odometry
-from bfc.controllers.lee import LeeController, LeeGains
+from bfc.controllers.lee import LeeController, LeeGains, lee_with_integral
 from bfc.controllers.mixer import Mixer, allocation_matrix
 from bfc.controllers.mpc import LinearMPC, MPCParams
 
-CONTROLLERS = {"lee": LeeController, "mpc": LinearMPC}
+CONTROLLERS = {"lee": LeeController, "lee_i": lee_with_integral, "mpc": LinearMPC}
 
 __all__ = [
     "CONTROLLERS",
@@ -21,4 +21,5 @@ __all__ = [
     "Mixer",
     "Odometry",
     "allocation_matrix",
+    "lee_with_integral",
 ]

@@ -26,9 +26,15 @@ class LeeGains:
     attitude: tuple[float, float, float] = (0.7, 0.7, 0.035)
     angular_rate: tuple[float, float, float] = (0.1, 0.1, 0.025)
     yaw: float | None = None  # desired heading (rad); None: hold the current one (the task is yaw-free)
+    # Beyond RotorS: an integral of the position error (N per m s), which removes a steady offset
+    # (a heavier body, weaker motors, wind); 0 = RotorS's controller. `lee_i` sets it.
+    integral: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    integral_max: float = 3.0  # m s per axis: anti-windup clamp of the integrated error
 
     def __post_init__(self) -> None:
-        for name in ("position", "velocity", "attitude", "angular_rate"):
+        if self.integral_max <= 0:
+            raise ValueError(f"lee.integral_max must be > 0, got {self.integral_max!r}")
+        for name in ("position", "velocity", "attitude", "angular_rate", "integral"):
             v = getattr(self, name)
             if len(v) != 3 or any(g < 0 for g in v):
                 raise ValueError(f"lee.{name} must be 3 gains >= 0, got {v!r}")
@@ -48,12 +54,25 @@ class LeeController(Controller):
         self.kv = torch.tensor(self.gains.velocity, dtype=f64)
         self.kr = torch.tensor(self.gains.attitude, dtype=f64)
         self.kw = torch.tensor(self.gains.angular_rate, dtype=f64)
+        self.ki = torch.tensor(self.gains.integral, dtype=f64)
+        self._integral = None
+
+    def reset(self) -> None:
+        self._integral = None
 
     def command(self, odo: Odometry, goal: torch.Tensor) -> torch.Tensor:
         n = goal.shape[0]
         e3 = torch.tensor([0.0, 0.0, 1.0], dtype=torch.float64)
         # Minus the desired acceleration (RotorS's sign convention): b3_des points along -acc.
-        acc = (self.kp * (odo.position - goal) + self.kv * odo.velocity) / self.mass - self.gravity * e3
+        error = odo.position - goal
+        force = self.kp * error + self.kv * odo.velocity
+        if bool((self.ki > 0).any()):
+            if self._integral is None or self._integral.shape[0] != n:
+                self._integral = torch.zeros(n, 3, dtype=torch.float64)
+            lim = self.gains.integral_max
+            self._integral = (self._integral + error * self.dt).clamp(-lim, lim)
+            force = force + self.ki * self._integral
+        acc = force / self.mass - self.gravity * e3
         b3 = -acc / acc.norm(dim=-1, keepdim=True).clamp_min(1e-9)
         yaw = odo.rpy[:, 2] if self.gains.yaw is None else torch.full((n,), self.gains.yaw, dtype=torch.float64)
         b1_heading = torch.stack((yaw.cos(), yaw.sin(), torch.zeros_like(yaw)), -1)
@@ -66,3 +85,11 @@ class LeeController(Controller):
         torque = -self.kr * e_r - self.kw * w + self.gyroscopic(w)
         thrust = -self.mass * (acc * r[:, :, 2]).sum(-1)
         return self.mixer(thrust, torque)
+
+
+LEE_INTEGRAL_GAINS = (2.0, 2.0, 2.0)  # N / (m s): closes a 2 N offset (mass +30%) in a few seconds
+
+
+def lee_with_integral(airframe: AirframeParams, dt: float) -> LeeController:
+    """`controller=lee_i`: Lee with an integral of the position error (beyond RotorS)."""
+    return LeeController(airframe, dt, LeeGains(integral=LEE_INTEGRAL_GAINS))

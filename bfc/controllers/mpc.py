@@ -71,7 +71,7 @@ class MPCParams:
     rate_hz: float = 100.0  # how often the QP is solved (the original: at the odometry rate)
     offset_free: bool = True
     disturbance_time_constant: float = 0.5  # s, low-pass of the disturbance estimate
-    disturbance_max: float = 2.0  # m/s^2 per axis
+    disturbance_max: float = 4.0  # m/s^2 per axis: room for a 30% heavier body or 20% weaker motors (~2.2)
     max_iter: int = 200  # OSQP iterations per solve; past it the LQR fallback flies
     # Attitude PID (inner loop)
     att_roll_gain: float = 60.0

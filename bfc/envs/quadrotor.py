@@ -177,7 +177,10 @@ class QuadrotorEnv(EnvBase):
         )
         _check(episode_seconds > 0, "env.episode_seconds", "> 0", episode_seconds)
         _check(
-            len(goal) == 3 and all(math.isfinite(float(v)) for v in goal), "env.goal", "3 finite numbers (x, y, z)", goal
+            len(goal) == 3 and all(math.isfinite(float(v)) for v in goal),
+            "env.goal",
+            "3 finite numbers (x, y, z)",
+            goal,
         )
         _check(start_motors in ("rest", "hover"), "env.start_motors", "'rest' or 'hover'", start_motors)
         if num_threads is None:
@@ -281,6 +284,25 @@ class QuadrotorEnv(EnvBase):
         else:
             self._goal[env_ids] = goal
 
+    @property
+    def external_force(self) -> torch.Tensor:
+        """(N, 3) the constant external force on each body (N, world frame; a copy)."""
+        return torch.from_numpy(self._ctrl_np[:, 0, 8:11].copy()).float()
+
+    def set_external_force(self, force, env_ids: torch.Tensor | None = None) -> None:
+        """A constant force (newtons, world frame) on the body's centre: wind, a tether, a push.
+        `force` is (3,) or (n, 3); it stays until set again (it is not reset with the episode)."""
+        force = torch.as_tensor(force, dtype=torch.float64)
+        if force.shape[-1:] != (3,) or force.ndim > 2:
+            raise ValueError(
+                f"external_force must have shape (3,) or (n, 3) (newtons, world frame), got {tuple(force.shape)}"
+            )
+        if not bool(torch.isfinite(force).all()):
+            raise ValueError(f"external_force must be finite, got {force.tolist()}")
+        rows = slice(None) if env_ids is None else torch.as_tensor(env_ids).numpy()
+        value = force.numpy()
+        self._ctrl_np[rows, :, 8:11] = value[..., None, :] if value.ndim == 2 else value
+
     def sample_default_starts(self, n: int | None = None) -> torch.Tensor:
         """(n, 12) starts from the task distribution D: on the floor, level, at rest."""
         n = self.num_envs if n is None else n
@@ -294,7 +316,7 @@ class QuadrotorEnv(EnvBase):
         return torch.from_numpy(start)
 
     # ----------------------------------------------------------------- state (checkpoints)
-    _STATE = ("physics", "motor", "lin_acc", "ang_acc", "steps", "goal")
+    _STATE = ("physics", "motor", "lin_acc", "ang_acc", "steps", "goal", "ctrl")
 
     def get_extra_state(self) -> dict:
         """Everything that evolves between steps (physics, motor speeds, accelerations, step

@@ -18,6 +18,7 @@ from torchrl.envs import TransformedEnv
 from torchrl.envs.utils import ExplorationType, set_exploration_type, step_mdp
 
 from bfc import keys
+from bfc.envs import AirframeParams
 from bfc.factory import find_transform, make_env
 from bfc.transforms import GivenStarts, MotorSpeedAction
 
@@ -128,7 +129,15 @@ PROTOCOL_HZ = 250.0  # the paper's control rate, for controllers that do not rec
 
 
 def fly(
-    controller, starts, goal=(0.0, 0.0, 1.5), seconds: float = 10.0, noise=None, seed: int = 0, control_hz=None
+    controller,
+    starts,
+    goal=(0.0, 0.0, 1.5),
+    seconds: float = 10.0,
+    noise=None,
+    seed: int = 0,
+    control_hz=None,
+    airframe: dict | None = None,
+    external_force=None,
 ) -> TensorDict:
     """Fly all `starts` (n, 12) at once for `seconds`, never resetting mid-flight.
 
@@ -137,6 +146,9 @@ def fly(
     and writing `"action"` in rad/s (flown at `control_hz`, default 250 Hz as in the paper).
     goal: (x, y, z) or waypoints [(time_s, (x, y, z)), ...]. noise: a `noise` config section, e.g.
     {"kind": "ou", "std": 0.05, "elements": "position"}; it corrupts only what the controller sees.
+    airframe: AirframeParams fields of the flown body, e.g. {"body_mass": 0.884} (model mismatch):
+    a classical controller keeps the nominal model it was built for, a policy its own maps.
+    external_force: a constant force in newtons, world frame, (3,) or one per start (n, 3).
     Returns a TensorDict (n, T); see `run_flights`.
     """
     from bfc.controllers import CONTROLLERS
@@ -171,10 +183,18 @@ def fly(
         raise ValueError(f"this policy was trained at {settings['control_hz']} Hz and is flown at that rate only")
     cfg.env.episode_seconds = seconds + 1.0
     n = starts.shape[0]
-    env = make_env(cfg, num_envs=n, samplers=False, given_starts=True, policy_io=policy_io)
+    env = make_env(cfg, num_envs=n, samplers=False, given_starts=True, policy_io=policy_io, airframe=airframe)
     env.set_seed(seed)
-    if name is not None:
-        controller = CONTROLLERS[name](env.base_env.airframe, env.base_env.dt)
+    if external_force is not None:
+        force = torch.as_tensor(external_force, dtype=torch.float64)
+        if force.shape not in ((3,), (n, 3)):
+            env.close()
+            raise ValueError(
+                f"external_force must have shape (3,) or ({n}, 3) (newtons, world frame), got {tuple(force.shape)}"
+            )
+        env.base_env.set_external_force(force)
+    if name is not None:  # built for the nominal airframe, whatever body it flies
+        controller = CONTROLLERS[name](AirframeParams(**OmegaConf.to_container(cfg.env.airframe)), env.base_env.dt)
     first, schedule = _goal_schedule(goal, env.base_env.dt)
     env.base_env.set_goal(first)
     try:

@@ -260,7 +260,8 @@ def runs_sections(runs_dir: Path, out: Path) -> list[str]:
     fig, axes = subplots(2, 3, figsize=(15, 7.6))
     lines = [
         "## Ablation (Table 2)",
-        f"Runs under `{runs_dir}`; success out of 100 protocol starts at the end of training, mean over seeds.",
+        f"Runs under `{runs_dir}`; success at the last in-training evaluation (the protocol on the runs' "
+        "`eval.seed` starts: the validation starts, seed 1, by default), mean over seeds.",
         "",
         "| variant | seeds | frames each | success (final) | fail | best during training |",
         "|---|---|---|---|---|---|",

@@ -122,6 +122,7 @@ class Runner:
         self.best, self.best_error = -1.0, math.inf
         self.timing = {"collect_seconds": 0.0, "update_seconds": 0.0, "batches": 0}  # this process only
         self.logger = None
+        self.stopped_early = False  # collector.stop_at_success was met
 
     # ------------------------------------------------------------------ save / load
     def state_dict(self) -> dict:
@@ -191,6 +192,14 @@ class Runner:
             self.write_policy(self.run_dir / "policy.pt")
         return metrics
 
+    def should_stop(self) -> bool:
+        """collector.stop_at_success: the last `stop_patience` evaluations (after frame 0) all reached it."""
+        c = self.cfg.collector
+        if c.stop_at_success is None:
+            return False
+        recent = [h["eval/success_rate"] for h in self.history if h["frames"] > 0][-c.stop_patience :]
+        return len(recent) == c.stop_patience and min(recent) >= c.stop_at_success
+
     def first_reach(self, level: float):
         for h in self.history:
             if h["eval/success_rate"] >= level:
@@ -204,7 +213,9 @@ class Runner:
         ckpt = read_checkpoint(run_dir)
         if ckpt is None:
             (run_dir / "config.yaml").write_text(OmegaConf.to_yaml(cfg, resolve=True))
-        elif int(ckpt["frames"]) >= self.total and (run_dir / "summary.json").is_file():
+        elif (run_dir / "summary.json").is_file() and (
+            int(ckpt["frames"]) >= self.total or json.loads((run_dir / "summary.json").read_text()).get("stopped_early")
+        ):
             print(f"{run_dir} already finished ({int(ckpt['frames'])} frames): nothing to resume")
             return json.loads((run_dir / "summary.json").read_text())
         else:
@@ -244,7 +255,8 @@ class Runner:
                 next_eval += e.interval_frames
                 if self.css is not None and self.logger is not None:
                     self.logger.experiment.add_figure("css/square_values", css_figure(self.css), self.frames)
-            if self.frames >= next_ckpt or self.frames >= self.total:
+                self.stopped_early = self.frames < self.total and self.should_stop()
+            if self.frames >= next_ckpt or self.frames >= self.total or self.stopped_early:
                 self.save()
                 next_ckpt += c.interval_frames
             if progress is not None:
@@ -252,7 +264,7 @@ class Runner:
                 progress.set_postfix(fps=f"{metrics['time/fps']:.0f}", success=f"{last_success:.2f}", refresh=False)
             torch.set_num_threads(1)  # collection: MuJoCo's threads get the cores
             t_batch = time.perf_counter()
-            if self.frames >= self.total:
+            if self.frames >= self.total or self.stopped_early:
                 break
         if progress is not None:
             progress.close()
@@ -300,6 +312,7 @@ class Runner:
             "best_success_rate": self.best,
             "first_reached_0.905": self.first_reach(PAPER_SUCCESS),
             "first_reached_0.99": self.first_reach(0.99),
+            "stopped_early": self.stopped_early,
             "collection_frames_per_second": round(
                 self.timing["batches"] * cfg.collector.frames_per_batch / max(self.timing["collect_seconds"], 1e-9)
             ),

@@ -168,3 +168,13 @@ def test_tiny_run_with_the_adaptive_kl_loss(tmp_path):
     assert "loss/kl_beta" in ea.Tags()["scalars"]
     betas = [e.value for e in ea.Scalars("loss/kl_beta")]
     assert all(b > 0 for b in betas)
+
+
+def test_stop_at_success_ends_the_run_after_patience_evaluations(tmp_path):
+    # success >= 0 holds at every evaluation: the run stops after the 2nd one past frame 0
+    overrides = [*TINY, "collector.total_frames=8192", "collector.stop_at_success=0.0", "collector.stop_patience=2"]
+    summary = train(compose_cfg([*overrides, "env.episode_seconds=0.2"]), tmp_path)
+    assert summary["stopped_early"] and summary["frames"] == 2048
+    assert [h["frames"] for h in summary["history"]] == [0, 1024, 2048]
+    assert (tmp_path / "policy_last.pt").is_file()
+    assert torch.load(tmp_path / "checkpoints" / "last.pt", weights_only=True)["frames"] == 2048

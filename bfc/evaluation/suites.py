@@ -1,0 +1,210 @@
+"""Named start sets and flight conditions beyond the paper's protocol, and the robustness table.
+
+Start sets (each (n, 12) in the `"start_state"` layout, x and y uniform in [-2, 2] m):
+    protocol  the paper's: z 0.5-3 m, roll and pitch each +-60 deg, any yaw, at rest
+    harsh     z 0.5-3 m, roll and pitch each +-85 deg, any yaw, released at up to 1 m/s in a random
+              direction and spinning at up to 2 rad/s about each body axis
+    any       a uniformly random attitude (upside down included), z 1.5-3 m, at rest
+    ground    on the floor, level, any yaw, at rest (take-off)
+Conditions (the protocol's starts; the flown body differs from the one the controller knows):
+    mass +-30% (body_mass), motor constant +-20%, motor time constants x3, inertia x1.5, and a
+    constant 1 N wind in a random horizontal direction per start.
+
+Every set is drawn from its own CPU generator seeded by (seed, set name), so the same seed gives
+the same starts on every machine; seed 0 is the test set the docs report (TEST_SEED).
+"""
+
+from __future__ import annotations
+
+import math
+import zlib
+from dataclasses import dataclass, field
+
+import torch
+
+from bfc import keys
+from bfc.envs import AirframeParams
+from bfc.envs.quadrotor import GROUND_HEIGHT
+from bfc.evaluation.judge import judge
+from bfc.evaluation.protocol import TEST_SEED, protocol_starts
+
+STEADY_SECONDS = 2.0  # hover error: mean distance to the goal over the last 2 s of a flight
+
+
+def _generator(name: str, seed: int) -> torch.Generator:
+    return torch.Generator().manual_seed(int(seed) * 1_000_003 + zlib.crc32(name.encode()))
+
+
+def _uniform(g, n, lo, hi) -> torch.Tensor:
+    return lo + (hi - lo) * torch.rand(n, generator=g, dtype=torch.float64)
+
+
+def quat_to_euler(q: torch.Tensor) -> torch.Tensor:
+    """(n, 4) w, x, y, z -> (n, 3) roll, pitch, yaw (ZYX), the `"start_state"` attitude."""
+    w, x, y, z = q.unbind(-1)
+    roll = torch.atan2(2 * (w * x + y * z), 1 - 2 * (x * x + y * y))
+    pitch = torch.asin((2 * (w * y - z * x)).clamp(-1.0, 1.0))
+    yaw = torch.atan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))
+    return torch.stack((roll, pitch, yaw), -1)
+
+
+def harsh_starts(n: int = 100, seed: int = TEST_SEED) -> torch.Tensor:
+    g = _generator("harsh", seed)
+    deg = math.pi / 180
+    s = torch.zeros(n, 12, dtype=torch.float64)
+    s[:, 0], s[:, 1], s[:, 2] = _uniform(g, n, -2, 2), _uniform(g, n, -2, 2), _uniform(g, n, 0.5, 3.0)
+    s[:, 3], s[:, 4], s[:, 5] = (
+        _uniform(g, n, -85, 85) * deg,
+        _uniform(g, n, -85, 85) * deg,
+        _uniform(g, n, -180, 180) * deg,
+    )
+    direction = torch.randn(n, 3, generator=g, dtype=torch.float64)
+    s[:, 6:9] = direction / direction.norm(dim=-1, keepdim=True) * _uniform(g, n, 0, 1).unsqueeze(-1)
+    s[:, 9:12] = torch.stack([_uniform(g, n, -2, 2) for _ in range(3)], -1)
+    return s.float()
+
+
+def any_starts(n: int = 100, seed: int = TEST_SEED) -> torch.Tensor:
+    g = _generator("any", seed)
+    q = torch.randn(n, 4, generator=g, dtype=torch.float64)  # a normalised Gaussian: uniform on SO(3)
+    q = q / q.norm(dim=-1, keepdim=True)
+    s = torch.zeros(n, 12, dtype=torch.float64)
+    s[:, 0], s[:, 1], s[:, 2] = _uniform(g, n, -2, 2), _uniform(g, n, -2, 2), _uniform(g, n, 1.5, 3.0)
+    s[:, 3:6] = quat_to_euler(q)
+    return s.float()
+
+
+def ground_starts(n: int = 100, seed: int = TEST_SEED) -> torch.Tensor:
+    g = _generator("ground", seed)
+    s = torch.zeros(n, 12, dtype=torch.float64)
+    s[:, 0], s[:, 1], s[:, 2] = _uniform(g, n, -2, 2), _uniform(g, n, -2, 2), GROUND_HEIGHT
+    s[:, 5] = _uniform(g, n, -math.pi, math.pi)
+    return s.float()
+
+
+START_SETS = {"protocol": protocol_starts, "harsh": harsh_starts, "any": any_starts, "ground": ground_starts}
+
+
+def horizontal_wind(n: int, newtons: float = 1.0, seed: int = TEST_SEED) -> torch.Tensor:
+    """(n, 3) a horizontal force of `newtons` in a random direction per start."""
+    angle = _uniform(_generator("wind", seed), n, -math.pi, math.pi)
+    return torch.stack((angle.cos(), angle.sin(), torch.zeros(n, dtype=torch.float64)), -1) * newtons
+
+
+@dataclass
+class Condition:
+    """A flight condition: the starts it flies and what differs from the nominal world."""
+
+    starts: str = "protocol"
+    airframe: dict = field(default_factory=dict)  # multipliers of AirframeParams fields
+    wind_newtons: float = 0.0
+
+    def flown_airframe(self, nominal: AirframeParams | None = None) -> dict | None:
+        """The AirframeParams overrides of the flown body (None: nominal)."""
+        if not self.airframe:
+            return None
+        nominal = nominal or AirframeParams()
+        out = {}
+        for name, factor in self.airframe.items():
+            value = getattr(nominal, name)
+            out[name] = [v * factor for v in value] if isinstance(value, tuple) else value * factor
+        return out
+
+
+SUITES = {
+    "protocol": Condition(),
+    "harsh": Condition("harsh"),
+    "any": Condition("any"),
+    "ground": Condition("ground"),
+    "mass +30%": Condition(airframe={"body_mass": 1.3}),
+    "mass -30%": Condition(airframe={"body_mass": 0.7}),
+    "motor constant -20%": Condition(airframe={"motor_constant": 0.8}),
+    "motor constant +20%": Condition(airframe={"motor_constant": 1.2}),
+    "motor lag x3": Condition(airframe={"time_constant_up": 3.0, "time_constant_down": 3.0}),
+    "inertia x1.5": Condition(airframe={"inertia": 1.5}),
+    "wind 1 N": Condition(wind_newtons=1.0),
+}
+
+
+def fly_condition(controller, name: str, num_starts: int = 100, seed: int = TEST_SEED, seconds: float = 10.0, **kw):
+    """Fly `controller` (anything `fly` takes) under the named suite condition."""
+    from bfc.evaluation.flights import fly
+
+    if name not in SUITES:
+        raise ValueError(f"unknown suite {name!r}; available: {', '.join(SUITES)}")
+    c = SUITES[name]
+    starts = START_SETS[c.starts](num_starts, seed)
+    wind = horizontal_wind(num_starts, c.wind_newtons, seed) if c.wind_newtons else None
+    return fly(controller, starts, seconds=seconds, seed=seed, airframe=c.flown_airframe(), external_force=wind, **kw)
+
+
+def hover_error(flights, success: torch.Tensor) -> float | None:
+    """Median over the successful flights of the mean distance to the goal over the last 2 s (m)."""
+    if not bool(success.any()):
+        return None
+    dt = float(flights.get("time")[0, 0])
+    tail = slice(-max(1, round(STEADY_SECONDS / dt)), None)
+    dist = (flights.get(keys.POSITION) - flights.get(keys.GOAL))[:, tail].norm(dim=-1).mean(-1)
+    return dist[success].median().item()
+
+
+def score(flights, threshold: float = 0.10, hold_seconds: float = 1.0) -> dict:
+    verdict = judge(flights, threshold, hold_seconds)
+    return {
+        "success_rate": verdict.success.float().mean().item(),
+        "crashes": int((~flights.get("alive")[:, -1]).sum()),
+        "hover_error_m": hover_error(flights, verdict.success),
+    }
+
+
+def robust_results(controllers: dict, names=None, num_starts: int = 100, seed: int = TEST_SEED, protocol=None) -> dict:
+    """{suite: {label: score}} for every controller (label -> anything `fly` takes) and suite."""
+    seconds = protocol.seconds if protocol is not None else 10.0
+    threshold = protocol.threshold if protocol is not None else 0.10
+    hold = protocol.hold_seconds if protocol is not None else 1.0
+    results = {}
+    for name in names or SUITES:
+        results[name] = {
+            label: score(fly_condition(c, name, num_starts, seed, seconds), threshold, hold)
+            for label, c in controllers.items()
+        }
+    return results
+
+
+def robust_table(results: dict) -> list[str]:
+    labels = list(next(iter(results.values())))
+    lines = [
+        "| suite | " + " | ".join(f"{label}: success, hover error" for label in labels) + " |",
+        "|---|" + "---|" * len(labels),
+    ]
+    for name, row in results.items():
+        cells = []
+        for label in labels:
+            s = row[label]
+            e = s["hover_error_m"]
+            err = "n/a" if e is None else ("< 0.1 cm" if e < 0.0005 else f"{100 * e:.1f} cm")
+            crashes = f" ({s['crashes']} crash{'es' if s['crashes'] > 1 else ''})" if s["crashes"] else ""
+            cells.append(f"{s['success_rate']:.2f}{crashes}, {err}")
+        lines.append(f"| {name} | " + " | ".join(cells) + " |")
+    return lines
+
+
+def robust_figure(results: dict, path) -> None:
+    from bfc.evaluation.plots import subplots
+
+    names = list(results)
+    labels = list(results[names[0]])
+    fig, (ax_s, ax_e) = subplots(1, 2, figsize=(13, 4.2))
+    width = 0.8 / len(labels)
+    for k, label in enumerate(labels):
+        xs = [i + k * width for i in range(len(names))]
+        ax_s.bar(xs, [results[n][label]["success_rate"] for n in names], width, label=label)
+        errs = [results[n][label]["hover_error_m"] for n in names]
+        ax_e.bar(xs, [100 * e if e is not None else float("nan") for e in errs], width, label=label)
+    for ax, title in ((ax_s, "success rate"), (ax_e, "hover error, median of successful flights (cm)")):
+        ax.set_xticks([i + 0.4 - width / 2 for i in range(len(names))], names, rotation=35, ha="right", fontsize=8)
+        ax.set_title(title)
+        ax.legend(fontsize=8, loc="lower left", framealpha=0.9)
+    ax_e.set_yscale("log")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
