@@ -25,6 +25,7 @@ import torch
 from bfc import keys
 from bfc.envs import AirframeParams
 from bfc.envs.quadrotor import GROUND_HEIGHT
+from bfc.envs.rotations import quat_to_euler
 from bfc.evaluation.judge import judge
 from bfc.evaluation.protocol import TEST_SEED, protocol_starts
 
@@ -37,15 +38,6 @@ def _generator(name: str, seed: int) -> torch.Generator:
 
 def _uniform(g, n, lo, hi) -> torch.Tensor:
     return lo + (hi - lo) * torch.rand(n, generator=g, dtype=torch.float64)
-
-
-def quat_to_euler(q: torch.Tensor) -> torch.Tensor:
-    """(n, 4) w, x, y, z -> (n, 3) roll, pitch, yaw (ZYX), the `"start_state"` attitude."""
-    w, x, y, z = q.unbind(-1)
-    roll = torch.atan2(2 * (w * x + y * z), 1 - 2 * (x * x + y * y))
-    pitch = torch.asin((2 * (w * y - z * x)).clamp(-1.0, 1.0))
-    yaw = torch.atan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))
-    return torch.stack((roll, pitch, yaw), -1)
 
 
 def harsh_starts(n: int = 100, seed: int = TEST_SEED) -> torch.Tensor:
