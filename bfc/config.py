@@ -18,7 +18,7 @@ from typing import Any
 from hydra.core.config_store import ConfigStore
 from omegaconf import DictConfig, OmegaConf
 
-from bfc.envs import AirframeParams, RewardParams, StartParams, TerminationParams
+from bfc.envs import AirframeParams, RandomizeParams, RewardParams, StartParams, TerminationParams
 
 CONF_DIR = Path(__file__).resolve().parents[1] / "conf"  # the repository's Hydra configs
 
@@ -38,6 +38,7 @@ class EnvConfig:
     reward: RewardParams = field(default_factory=RewardParams)
     termination: TerminationParams = field(default_factory=TerminationParams)
     start: StartParams = field(default_factory=StartParams)
+    randomize: RandomizeParams = field(default_factory=RandomizeParams)  # per-episode world randomisation
 
 
 @dataclass

@@ -31,8 +31,11 @@ def _plain(node):
     return OmegaConf.to_container(node, resolve=True) if OmegaConf.is_config(node) else node
 
 
-def make_base_env(cfg, num_envs: int | None = None, airframe: dict | None = None) -> QuadrotorEnv:
-    """The base env; `airframe` overrides AirframeParams fields of the simulated body only."""
+def make_base_env(
+    cfg, num_envs: int | None = None, airframe: dict | None = None, randomize: bool = True
+) -> QuadrotorEnv:
+    """The base env; `airframe` overrides AirframeParams fields of the simulated body only;
+    randomize=False leaves `env.randomize` (training-time domain randomisation) off."""
     e = cfg.env
     flown = _plain(e.airframe) or {}
     if airframe:
@@ -47,6 +50,7 @@ def make_base_env(cfg, num_envs: int | None = None, airframe: dict | None = None
         reward=_plain(e.reward),
         termination=_plain(e.termination),
         start=_plain(e.start),
+        randomize=_plain(e.randomize) if randomize else None,
         start_motors=e.start_motors,
         num_threads=e.num_threads,
     )
@@ -79,7 +83,8 @@ def make_env(
 ) -> TransformedEnv:
     """Build the env for `cfg`.
 
-    samplers=False switches JD, CSS and TDTS off whatever the config says (evaluation);
+    samplers=False switches JD, CSS, TDTS and `env.randomize` off whatever the config says
+    (evaluation: the flown world is the nominal one unless `airframe` says otherwise);
     noise overrides `cfg.noise`; given_starts adds a GivenStarts transform (`env.transform`
     member) through which a caller places envs at chosen starts on the next reset;
     policy_io=False leaves out the policy's observation and action maps, for controllers that
@@ -87,7 +92,7 @@ def make_env(
     airframe overrides AirframeParams fields of the flown body only (model mismatch): the policy's
     observation and action maps keep the nominal airframe of `cfg.env.airframe`.
     """
-    base = make_base_env(cfg, num_envs, airframe)
+    base = make_base_env(cfg, num_envs, airframe, randomize=samplers)
     nominal = AirframeParams(**(_plain(cfg.env.airframe) or {}))
     n, dt = base.num_envs, base.dt
     ts = []

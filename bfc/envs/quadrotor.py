@@ -99,6 +99,18 @@ class StartParams:
         _check(0 <= self.yaw_range_deg <= 180, "env.start.yaw_range_deg", "in [0, 180]", self.yaw_range_deg)
 
 
+@dataclass
+class RandomizeParams:
+    """Per-episode randomisation of the world (domain randomisation), drawn at every reset from
+    the env's generator; all off by default (then nothing is drawn and runs are unchanged)."""
+
+    external_force: float = 0.0  # N: a constant horizontal force, random direction, size uniform in [0, this]
+
+    def __post_init__(self) -> None:
+        v = self.external_force
+        _check(isinstance(v, (int, float)) and math.isfinite(v) and v >= 0, "env.randomize.external_force", ">= 0", v)
+
+
 def _body_xy_velocity(phys: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Body-frame x and y of the linear velocity, R(q)^T v, for physics states (N, 14)."""
     w, x, y, z, vx, vy, vz = phys[:, 4:11].T
@@ -160,6 +172,7 @@ class QuadrotorEnv(EnvBase):
         reward: RewardParams | dict | None = None,
         termination: TerminationParams | dict | None = None,
         start: StartParams | dict | None = None,
+        randomize: RandomizeParams | dict | None = None,
         start_motors: str = "rest",
         num_threads: int | None = None,
         seed: int | None = None,
@@ -193,6 +206,7 @@ class QuadrotorEnv(EnvBase):
         self.reward_params = _as(RewardParams, reward)
         self.termination = _as(TerminationParams, termination)
         self.start_params = _as(StartParams, start)
+        self.randomize = _as(RandomizeParams, randomize)
         self.control_hz = float(control_hz)
         self.physics_dt = float(physics_dt)
         self.substeps = substeps
@@ -385,6 +399,11 @@ class QuadrotorEnv(EnvBase):
         self._lin_acc_np[m] = 0.0
         self._ang_acc_np[m] = 0.0
         self._steps_np[m] = 0
+        if self.randomize.external_force > 0:  # a new wind for each new episode
+            u = torch.rand(int(m.sum()), 2, generator=self._generator, dtype=torch.float64).numpy()
+            size, angle = u[:, 0] * self.randomize.external_force, (u[:, 1] * 2 - 1) * math.pi
+            force = np.stack((size * np.cos(angle), size * np.sin(angle), np.zeros_like(size)), -1)
+            self._ctrl_np[m, :, 8:11] = force[:, None, :]
 
     def _step(self, tensordict: TensorDictBase) -> TensorDictBase:
         action = tensordict.get(keys.ACTION)
@@ -543,4 +562,5 @@ class QuadrotorEnv(EnvBase):
             "reward": asdict(self.reward_params),
             "termination": asdict(self.termination),
             "start": asdict(self.start_params),
+            "randomize": asdict(self.randomize),
         }

@@ -307,3 +307,38 @@ def test_airframe_overrides_reach_the_physics():
 def test_rotation_helpers_round_trip():
     rpy = torch.tensor([[0.3, -0.5, 2.0], [-1.0, 0.2, -3.0]], dtype=torch.float64)
     torch.testing.assert_close(quat_to_euler(euler_to_quat(rpy)), rpy)
+
+
+def test_randomized_external_force_is_drawn_per_episode_within_its_range_and_reproducible():
+    from bfc.envs import RandomizeParams
+
+    def forces(seed):
+        env = QuadrotorEnv(64, randomize={"external_force": 1.5}, seed=seed)
+        env.reset()
+        first = env.external_force.clone()
+        td = env.reset()
+        second = env.external_force.clone()
+        env.close()
+        return first, second, td
+
+    first, second, _ = forces(3)
+    size = first.norm(dim=-1)
+    assert (first[:, 2] == 0).all() and size.max() <= 1.5 + 1e-6 and size.max() > 1.0 and size.min() < 0.5
+    assert not torch.equal(first, second)  # a new force every episode
+    assert torch.equal(forces(3)[0], first) and not torch.equal(forces(4)[0], first)  # by seed
+    env = QuadrotorEnv(4, seed=3)  # off by default: no force, no draw
+    env.reset()
+    assert (env.external_force == 0).all()
+    with pytest.raises(ValueError, match="env.randomize.external_force"):
+        RandomizeParams(external_force=-1.0)
+
+
+def test_evaluation_envs_leave_training_randomisation_off():
+    from bfc.config import compose
+    from bfc.factory import make_env
+
+    cfg = compose(["env.num_envs=8", "env.randomize.external_force=1.0"])
+    train_env, eval_env = make_env(cfg, seed=0), make_env(cfg, seed=0, samplers=False)
+    train_env.reset()
+    eval_env.reset()
+    assert (train_env.base_env.external_force != 0).any() and (eval_env.base_env.external_force == 0).all()
