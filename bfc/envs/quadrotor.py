@@ -307,13 +307,14 @@ class QuadrotorEnv(EnvBase):
         """A constant force (newtons, world frame) on the body's centre: wind, a tether, a push.
         `force` is (3,) or (n, 3); it stays until set again (it is not reset with the episode)."""
         force = torch.as_tensor(force, dtype=torch.float64)
-        if force.shape[-1:] != (3,) or force.ndim > 2:
+        rows = slice(None) if env_ids is None else torch.as_tensor(env_ids).numpy()
+        count = self._ctrl_np[rows].shape[0]
+        if force.shape not in ((3,), (count, 3)):
             raise ValueError(
-                f"external_force must have shape (3,) or (n, 3) (newtons, world frame), got {tuple(force.shape)}"
+                f"external_force must have shape (3,) or ({count}, 3) (newtons, world frame), got {tuple(force.shape)}"
             )
         if not bool(torch.isfinite(force).all()):
             raise ValueError(f"external_force must be finite, got {force.tolist()}")
-        rows = slice(None) if env_ids is None else torch.as_tensor(env_ids).numpy()
         value = force.numpy()
         self._ctrl_np[rows, :, 8:11] = value[..., None, :] if value.ndim == 2 else value
 

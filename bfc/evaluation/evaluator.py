@@ -11,11 +11,9 @@ from omegaconf import OmegaConf
 from bfc import keys
 from bfc.evaluation.flights import run_flights
 from bfc.evaluation.judge import judge
-from bfc.evaluation.metrics import tilt_degrees
+from bfc.evaluation.metrics import tail_distance, tilt_degrees
 from bfc.evaluation.protocol import protocol_starts
 from bfc.factory import make_env
-
-STEADY_SECONDS = 2.0  # the hover errors are averaged over the last 2 s of each flight
 
 
 class ProtocolEvaluator:
@@ -35,8 +33,8 @@ class ProtocolEvaluator:
     def __call__(self, actor) -> dict[str, float]:
         flights = run_flights(self.env, actor, self.starts, self.steps)
         verdict = judge(flights, self.threshold, self.hold_seconds)
-        tail = slice(-round(STEADY_SECONDS / self.env.base_env.dt), None)
-        err = (flights.get(keys.POSITION) - flights.get(keys.GOAL))[:, tail].norm(dim=-1)
+        err = tail_distance(flights)
+        tail = slice(-err.shape[1], None)
         tilt = tilt_degrees(flights.get(keys.QUATERNION)[:, tail])
         survived = flights.get("alive")[:, -1]
         pick = survived if bool(survived.any()) else torch.ones_like(survived)

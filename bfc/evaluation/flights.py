@@ -185,19 +185,14 @@ def fly(
     n = starts.shape[0]
     env = make_env(cfg, num_envs=n, samplers=False, given_starts=True, policy_io=policy_io, airframe=airframe)
     env.set_seed(seed)
-    if external_force is not None:
-        force = torch.as_tensor(external_force, dtype=torch.float64)
-        if force.shape not in ((3,), (n, 3)):
-            env.close()
-            raise ValueError(
-                f"external_force must have shape (3,) or ({n}, 3) (newtons, world frame), got {tuple(force.shape)}"
-            )
-        env.base_env.set_external_force(force)
-    if name is not None:  # built for the nominal airframe, whatever body it flies
-        controller = CONTROLLERS[name](AirframeParams(**OmegaConf.to_container(cfg.env.airframe)), env.base_env.dt)
-    first, schedule = _goal_schedule(goal, env.base_env.dt)
-    env.base_env.set_goal(first)
     try:
+        if external_force is not None:
+            env.base_env.set_external_force(external_force)
+        if name is not None:  # built for the nominal airframe, whatever body it flies
+            nominal = AirframeParams(**OmegaConf.to_container(cfg.env.airframe))
+            controller = CONTROLLERS[name](nominal, env.base_env.dt)
+        first, schedule = _goal_schedule(goal, env.base_env.dt)
+        env.base_env.set_goal(first)
         return run_flights(env, controller, starts, round(seconds / env.base_env.dt), goal_schedule=schedule)
     finally:
         env.close()

@@ -16,6 +16,16 @@ def tilt_degrees(quaternion: torch.Tensor) -> torch.Tensor:
     return torch.rad2deg(torch.acos((1 - 2 * (x * x + y * y)).clamp(-1.0, 1.0)))
 
 
+STEADY_SECONDS = 2.0  # hover errors are taken over the last 2 s of a flight
+
+
+def tail_distance(trajectory: TensorDict, seconds: float = STEADY_SECONDS) -> torch.Tensor:
+    """(n, k) distance to the goal at each of the last `seconds` of every flight (m)."""
+    dt = float(trajectory.get("time")[0, 0])
+    tail = slice(-max(1, round(seconds / dt)), None)
+    return (trajectory.get(keys.POSITION) - trajectory.get(keys.GOAL))[:, tail].norm(dim=-1)
+
+
 def summarize(trajectory: TensorDict, threshold: float = 0.10, hold_seconds: float = 1.0) -> dict:
     """Success count and rate, per-start outcome and time to success, and the mean and 95th
     percentile of position and attitude error over the flight after success."""

@@ -22,14 +22,12 @@ from dataclasses import dataclass, field
 
 import torch
 
-from bfc import keys
 from bfc.envs import AirframeParams
 from bfc.envs.quadrotor import GROUND_HEIGHT
 from bfc.envs.rotations import quat_to_euler
 from bfc.evaluation.judge import judge
+from bfc.evaluation.metrics import tail_distance
 from bfc.evaluation.protocol import TEST_SEED, protocol_starts
-
-STEADY_SECONDS = 2.0  # hover error: mean distance to the goal over the last 2 s of a flight
 
 
 def _generator(name: str, seed: int) -> torch.Generator:
@@ -134,10 +132,7 @@ def hover_error(flights, success: torch.Tensor) -> float | None:
     """Median over the successful flights of the mean distance to the goal over the last 2 s (m)."""
     if not bool(success.any()):
         return None
-    dt = float(flights.get("time")[0, 0])
-    tail = slice(-max(1, round(STEADY_SECONDS / dt)), None)
-    dist = (flights.get(keys.POSITION) - flights.get(keys.GOAL))[:, tail].norm(dim=-1).mean(-1)
-    return dist[success].median().item()
+    return tail_distance(flights).mean(-1)[success].median().item()
 
 
 def score(flights, threshold: float = 0.10, hold_seconds: float = 1.0) -> dict:
