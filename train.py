@@ -1,6 +1,8 @@
 """Train BFC (PPO + JD/CSS/TDTS) on the MuJoCo Hummingbird.
 
-python train.py                                  # the full BFC (JD-CSS-TDTS), defaults known to learn
+python train.py                                  # the full BFC (JD-CSS-TDTS) + bfc's robust extras
+python train.py extras=none                      # the paper's BFC alone
+python train.py algo=trpo +preset=paper          # TRPO (or algo=ddpg); the paper as written
 python train.py +ablation=jd_tdts seed=1         # one ablation variant
 python train.py -m +ablation=ppo,jd,jd_css_tdts seed=0,1,2   # a sweep
 python train.py resume=outputs/2026-11-22/10-00-00           # continue a killed run

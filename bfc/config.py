@@ -86,6 +86,11 @@ class ModelConfig:
     activation: str = "tanh"  # tanh | relu | elu
     init_std: float = 0.2
     include_acceleration: bool = False
+    # the integral of the position error as 3 more inputs: lets the policy remove a steady offset
+    # (mass, thrust, wind) as a PID's integral term does (bfc/transforms/observation.py)
+    position_integral: bool = False
+    observation: str = "heading"  # heading (22 numbers, bfc's) | odometry (18, the paper's; +preset=paper)
+    squash: bool = False  # tanh on the actor's mean (algo=ddpg sets it: its actor climbs the critic's gradient)
     action_map: str = "thrust"  # thrust | speed: how the policy's [-1, 1] maps to motor speed (transforms/action.py)
 
 
@@ -111,6 +116,28 @@ class LossConfig:
     epochs: int = 5
     num_minibatches: int = 4  # per epoch; the minibatch is frames_per_batch / num_minibatches frames
     minibatch_size: int | None = None  # set: a fixed size in frames instead (overrides num_minibatches)
+
+
+@dataclass
+class AlgoConfig:
+    """The learning algorithm (config group `algo`: conf/algo/ppo.yaml, trpo.yaml, ddpg.yaml)."""
+
+    name: str = "ppo"  # ppo (the paper's BFC) | trpo | ddpg (the paper's comparisons, figs. 5-7)
+    # trpo: the KL bound of each natural-gradient step, conjugate-gradient iterations, the Fisher
+    # damping, backtracking steps of the line search (halving the step each time)
+    max_kl: float = 0.01
+    cg_iterations: int = 10
+    damping: float = 0.1
+    line_search_steps: int = 10
+    # ddpg: replay buffer (transitions), minibatch, gradient steps per collected batch, Polyak
+    # tau of the target networks, learning rates, transitions stored before the first update
+    buffer_size: int = 1_000_000
+    batch_size: int = 256
+    updates_per_batch: int = 64
+    tau: float = 0.005
+    actor_lr: float = 1e-4
+    critic_lr: float = 1e-3
+    warmup_frames: int = 10_000
 
 
 @dataclass
@@ -164,6 +191,7 @@ class Config:
     tdts: TDTSConfig = field(default_factory=TDTSConfig)
     noise: NoiseConfig = field(default_factory=NoiseConfig)
     model: ModelConfig = field(default_factory=ModelConfig)
+    algo: AlgoConfig = field(default_factory=AlgoConfig)
     collector: CollectorConfig = field(default_factory=CollectorConfig)
     loss: LossConfig = field(default_factory=LossConfig)
     optim: OptimConfig = field(default_factory=OptimConfig)
@@ -306,6 +334,26 @@ def validate(cfg) -> None:
         d = cfg.jd.decay_frames
         _check(d >= 0, "jd.decay_frames", "null (= collector.total_frames) or >= 0", d)
     _check(cfg.optim.lr > 0, "optim.lr", "> 0", cfg.optim.lr)
+    a = cfg.algo
+    _check(a.name in ("ppo", "trpo", "ddpg"), "algo.name", "ppo, trpo or ddpg (conf/algo/)", a.name)
+    _check(a.max_kl > 0, "algo.max_kl", "> 0", a.max_kl)
+    _check(
+        a.cg_iterations >= 1 and a.line_search_steps >= 1,
+        "algo.cg_iterations and algo.line_search_steps",
+        ">= 1",
+        (a.cg_iterations, a.line_search_steps),
+    )
+    _check(a.damping >= 0, "algo.damping", ">= 0", a.damping)
+    _check(
+        a.batch_size >= 1 and a.buffer_size >= a.batch_size,
+        "algo.batch_size",
+        f"in [1, algo.buffer_size={a.buffer_size}]",
+        a.batch_size,
+    )
+    _check(a.updates_per_batch >= 1, "algo.updates_per_batch", ">= 1", a.updates_per_batch)
+    _check(0 < a.tau <= 1, "algo.tau", "in (0, 1]", a.tau)
+    _check(a.actor_lr > 0 and a.critic_lr > 0, "algo.actor_lr and algo.critic_lr", "> 0", (a.actor_lr, a.critic_lr))
+    _check(a.warmup_frames >= 0, "algo.warmup_frames", ">= 0", a.warmup_frames)
     _check(
         cfg.model.activation in ("tanh", "relu", "elu"), "model.activation", "tanh, relu or elu", cfg.model.activation
     )

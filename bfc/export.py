@@ -7,7 +7,12 @@ action maps inside it, so a deployer feeds it raw sensor numbers and gets motor 
              goal                   (N, 3)  float32, m, world frame
              previous_motor_speeds  (N, 4)  float32, rad/s: the command the graph output at the
                                             previous control step; the hover speed after a reset
+             position_error_integral (N, 3) float32, m s, world frame: only for policies trained
+                                            with `model.position_integral`; the graph's own
+                                            `next_position_error_integral` of the previous step,
+                                            zeros after a reset
     output   motor_speeds           (N, 4)  float32, rad/s, clipped to [0, max_rotor_speed]
+             next_position_error_integral (N, 3): with the integral input only
 
 The batch axis N is dynamic. The model's metadata_props record the control rate (`control_hz`),
 `hover_speed`, `max_rotor_speed`, `action_map` and the policy format; see docs/export.md.
@@ -41,6 +46,7 @@ from bfc.transforms import MotorSpeedAction, PolicyObservation
 ONNX_FORMAT = "bfc-onnx-v1"
 INPUTS = ("odometry", "goal", "previous_motor_speeds")
 OUTPUT = "motor_speeds"
+INTEGRAL_INPUT, INTEGRAL_OUTPUT = "position_error_integral", "next_position_error_integral"
 ODOMETRY_LAYOUT = (
     "0:3 position (m, world), 3:6 linear velocity (m/s, world), 6:9 linear acceleration (m/s^2, world), "
     "9:12 roll, pitch, yaw (rad, ZYX), 12:15 angular velocity (rad/s, body), "
@@ -59,15 +65,26 @@ class PolicyExportModule(nn.Module):
         # The maps' methods, not the transforms: only the network's weights belong in the graph
         # (a transform's buffers and extra state, such as a generator, do not).
         self.build_observation = observation.build
+        self.integrate = observation.integrate if observation.position_integral else None
         self.to_action = action.to_action
         self.to_command = action.to_command
         self.max_speed = action.max_speed
 
-    def forward(self, odometry: torch.Tensor, goal: torch.Tensor, previous_motor_speeds: torch.Tensor) -> torch.Tensor:
-        # exactly what PolicyObservation._step keeps as the previous action
+    def forward(
+        self,
+        odometry: torch.Tensor,
+        goal: torch.Tensor,
+        previous_motor_speeds: torch.Tensor,
+        position_error_integral: torch.Tensor | None = None,
+    ):
+        # exactly what PolicyObservation._step keeps as the previous action (and integral)
         last_action = self.to_action(previous_motor_speeds).clamp(-1, 1)
-        loc, _scale = self.head(self.build_observation(odometry, goal, last_action))  # the mean: no sampling
-        return self.to_command(loc).clamp(0.0, self.max_speed)  # the env's clip (QuadrotorEnv._step)
+        integral = None
+        if self.integrate is not None:
+            integral = self.integrate(position_error_integral, odometry, goal)
+        loc, _scale = self.head(self.build_observation(odometry, goal, last_action, integral))  # the mean
+        speeds = self.to_command(loc).clamp(0.0, self.max_speed)  # the env's clip (QuadrotorEnv._step)
+        return speeds if integral is None else (speeds, integral)
 
 
 def policy_settings(payload: dict) -> dict:
@@ -84,6 +101,8 @@ def policy_settings(payload: dict) -> dict:
         # files written before `action_map` existed used the speed map
         "action_map": str(payload["model"].get("action_map", "speed")),
         "include_acceleration": bool(observation["include_acceleration"]),
+        "position_integral": bool(observation.get("position_integral", False)),
+        "observation": str(observation.get("kind", "heading")),
         "observation_size": int(observation["size"]),
     }
 
@@ -98,11 +117,15 @@ def export_module(policy_path) -> tuple[PolicyExportModule, dict]:
         settings["hover_speed"],
         include_acceleration=settings["include_acceleration"],
         command_to_action=action.to_action,
+        position_integral=settings["position_integral"],
+        dt=1.0 / settings["control_hz"],
+        kind=settings["observation"],
     )
     if observation.size != settings["observation_size"]:
         raise ValueError(
             f"{policy_path}: observation size {settings['observation_size']} does not match "
-            f"PolicyObservation's {observation.size} (include_acceleration={settings['include_acceleration']})"
+            f"PolicyObservation's {observation.size} (include_acceleration={settings['include_acceleration']}, "
+            f"position_integral={settings['position_integral']})"
         )
     module = PolicyExportModule(actor.module[0].module, observation, action).eval()
     return module, settings
@@ -136,6 +159,11 @@ def export_onnx(policy_path, onnx_path, opset: int | None = None) -> Path:
     module, settings = export_module(policy_path)
     n = 2  # any batch size: the batch axis is exported as dynamic
     example = (torch.zeros(n, 18), torch.zeros(n, 3), torch.full((n, 4), settings["hover_speed"]))
+    inputs, outputs = list(INPUTS), [OUTPUT]
+    if settings["position_integral"]:
+        example += (torch.zeros(n, 3),)
+        inputs.append(INTEGRAL_INPUT)
+        outputs.append(INTEGRAL_OUTPUT)
     buffer = io.BytesIO()
     with warnings.catch_warnings():  # the TorchScript exporter is deprecated in favour of dynamo (onnxscript)
         warnings.simplefilter("ignore")
@@ -143,9 +171,9 @@ def export_onnx(policy_path, onnx_path, opset: int | None = None) -> Path:
             module,
             example,
             buffer,
-            input_names=list(INPUTS),
-            output_names=[OUTPUT],
-            dynamic_axes={name: {0: "batch"} for name in (*INPUTS, OUTPUT)},
+            input_names=inputs,
+            output_names=outputs,
+            dynamic_axes={name: {0: "batch"} for name in (*inputs, *outputs)},
             opset_version=opset,
             dynamo=False,
         )
@@ -154,7 +182,13 @@ def export_onnx(policy_path, onnx_path, opset: int | None = None) -> Path:
     model.doc_string = (
         "bfc deterministic quadrotor policy: (odometry (N,18), goal (N,3) m, previous_motor_speeds (N,4) rad/s) "
         "-> motor_speeds (N,4) rad/s in [0, max_rotor_speed]. Run it at control_hz; feed back its own output "
-        "as previous_motor_speeds, hover_speed after a reset. See docs/export.md."
+        "as previous_motor_speeds, hover_speed after a reset"
+        + (
+            "; feed back next_position_error_integral as position_error_integral, zeros after a reset"
+            if settings["position_integral"]
+            else ""
+        )
+        + ". See docs/export.md."
     )
     metadata = {
         "bfc_onnx_format": ONNX_FORMAT,
@@ -164,6 +198,8 @@ def export_onnx(policy_path, onnx_path, opset: int | None = None) -> Path:
         "max_rotor_speed": repr(settings["max_rotor_speed"]),
         "action_map": settings["action_map"],
         "include_acceleration": str(settings["include_acceleration"]).lower(),
+        "position_integral": str(settings["position_integral"]).lower(),
+        "observation": settings["observation"],
         "odometry_layout": ODOMETRY_LAYOUT,
         "motor_order": "0 front (+x) CW, 1 left (+y) CCW, 2 back (-x) CW, 3 right (-y) CCW",
         "source": Path(policy_path).name,
@@ -199,15 +235,18 @@ def _parse_metadata(meta: dict, onnx_path) -> dict:
     for key in ("control_hz", "hover_speed", "max_rotor_speed"):
         out[key] = float(meta[key])
     out["include_acceleration"] = meta.get("include_acceleration") == "true"
+    out["position_integral"] = meta.get("position_integral") == "true"
     return out
 
 
 class OnnxController(TensorDictModuleBase):
     """Flies an exported policy with onnxruntime: reads `"odometry"` and `"goal"`, writes `"action"`
-    (motor speeds, rad/s), and feeds its own last command back as `previous_motor_speeds`.
+    (motor speeds, rad/s), and feeds its own last command back as `previous_motor_speeds` (and,
+    for a policy with a position integral, its own `next_position_error_integral`).
 
     `fly(OnnxController(path), starts, control_hz=controller.control_hz)` flies it as trained.
     The previous command starts at the hover speed (the env's zero previous action) for every env:
+    (and the integral at zero)
     - at the first call, and at any call whose batch size differs from the stored state;
     - after `reset()` (also called by `begin_flight()`, which flight runners call before a flight);
     - per env, where the input carries TorchRL's `"is_init"` (InitTracker) or `"step_count" == 0`
@@ -236,10 +275,12 @@ class OnnxController(TensorDictModuleBase):
         self.hover_speed = self.metadata["hover_speed"]
         self.max_rotor_speed = self.metadata["max_rotor_speed"]
         self.previous_motor_speeds: np.ndarray | None = None
+        self.integral: np.ndarray | None = None
 
     def reset(self) -> None:
         """Forget the previous command: the next call starts every env from hover."""
         self.previous_motor_speeds = None
+        self.integral = None
 
     def begin_flight(self) -> None:
         self.reset()
@@ -256,20 +297,26 @@ class OnnxController(TensorDictModuleBase):
         goal = td.get(keys.GOAL)
         n = odometry.shape[0]
         goal = goal.expand(n, 3) if goal.ndim == 1 else goal
-        previous = self.previous_motor_speeds
+        previous, integral = self.previous_motor_speeds, self.integral
         if previous is None or previous.shape[0] != n:
             previous = np.full((n, 4), self.hover_speed, dtype=np.float32)
+            integral = np.zeros((n, 3), dtype=np.float32)
         mask = self._reset_mask(td)
         if mask is not None and mask.any():
-            previous = previous.copy()
+            previous, integral = previous.copy(), integral.copy()
             previous[mask] = self.hover_speed
+            integral[mask] = 0.0
         feeds = {
             "odometry": odometry.detach().cpu().numpy().astype(np.float32, copy=False),
             "goal": goal.detach().cpu().numpy().astype(np.float32, copy=False),
             "previous_motor_speeds": previous,
         }
-        (speeds,) = self.session.run([OUTPUT], feeds)
-        self.previous_motor_speeds = speeds
+        if self.metadata["position_integral"]:
+            feeds[INTEGRAL_INPUT] = integral
+            speeds, integral = self.session.run([OUTPUT, INTEGRAL_OUTPUT], feeds)
+        else:
+            (speeds,) = self.session.run([OUTPUT], feeds)
+        self.previous_motor_speeds, self.integral = speeds, integral
         td.set(keys.ACTION, torch.from_numpy(speeds.copy()).to(odometry.device))
         return td
 

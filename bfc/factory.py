@@ -135,6 +135,9 @@ def make_env(
                 nominal.hover_speed,
                 include_acceleration=cfg.model.include_acceleration,
                 command_to_action=action.to_action,
+                position_integral=cfg.model.position_integral,
+                dt=dt,
+                kind=cfg.model.observation,
             )
         )
         ts.append(action)

@@ -26,10 +26,15 @@ class GaussianHead(nn.Module):
 
     The last layer starts near zero, so the untrained policy commands about hover (action 0);
     the std starts at `init_std` (small: big motor noise makes take-off a lottery).
+    squash=True puts the mean through tanh (inside [-1, 1]): for DDPG, whose actor climbs the
+    critic's gradient and would otherwise leave the action range.
     """
 
-    def __init__(self, obs_size: int, hidden: list[int], activation: str = "tanh", init_std: float = 0.2):
+    def __init__(
+        self, obs_size: int, hidden: list[int], activation: str = "tanh", init_std: float = 0.2, squash: bool = False
+    ):
         super().__init__()
+        self.squash = bool(squash)
         self.mean = MLP(
             in_features=obs_size, out_features=4, num_cells=list(hidden), activation_class=ACTIVATIONS[activation]
         )
@@ -41,12 +46,16 @@ class GaussianHead(nn.Module):
 
     def forward(self, obs: torch.Tensor):
         loc = self.mean(obs)
+        if self.squash:
+            loc = loc.tanh()
         return loc, self.log_std.exp().expand_as(loc)
 
 
-def make_actor(obs_size: int, hidden, activation="tanh", init_std=0.2, action_spec=None) -> ProbabilisticActor:
+def make_actor(
+    obs_size: int, hidden, activation="tanh", init_std=0.2, action_spec=None, squash=False
+) -> ProbabilisticActor:
     head = TensorDictModule(
-        GaussianHead(obs_size, list(hidden), activation, init_std),
+        GaussianHead(obs_size, list(hidden), activation, init_std, squash),
         in_keys=[keys.OBSERVATION],
         out_keys=["loc", "scale"],
     )
@@ -106,7 +115,9 @@ def load_policy(path) -> tuple[ProbabilisticActor, dict]:
     """(actor, payload): the actor in eval mode with the file's weights, and the file's settings."""
     payload = read_policy_file(path)
     m = payload["model"]
-    actor = make_actor(payload["observation"]["size"], m["actor_hidden"], m["activation"], m["init_std"])
+    actor = make_actor(
+        payload["observation"]["size"], m["actor_hidden"], m["activation"], m["init_std"], squash=m.get("squash", False)
+    )
     actor.module[0].module.load_state_dict(payload["state_dict"])
     actor.eval()
     return actor, payload

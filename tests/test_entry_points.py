@@ -71,7 +71,11 @@ def test_compose_works_from_a_fresh_interpreter_after_importing_bfc_config():
 
 @pytest.mark.parametrize(
     "override, key",
-    [("+env.num_envz=3", "env.num_envz"), ("+preset=paper", "preset"), ("+loss.minibatchsize=7", "loss.minibatchsize")],
+    [
+        ("+env.num_envz=3", "env.num_envz"),
+        ("+presets=paper", "presets"),
+        ("+loss.minibatchsize=7", "loss.minibatchsize"),
+    ],
 )
 def test_a_plus_override_that_names_no_key_is_an_error(override, key):
     from bfc.config import compose
@@ -118,7 +122,13 @@ def test_jd_decay_follows_the_run_length_unless_set():
     from bfc.factory import find_transform, make_env
     from bfc.transforms import JumpingDistribution
 
-    for overrides, expected in ((["collector.total_frames=3000000"], 3_000_000), (["jd.decay_frames=5"], 5)):
+    # the schema's null follows the run (the paper's variants); the robust extras pin 40M (p -> 0.75)
+    cases = (
+        (["extras=none", "collector.total_frames=3000000"], 3_000_000),
+        (["extras=none", "jd.decay_frames=5"], 5),
+        (["collector.total_frames=3000000"], 40_000_000),
+    )
+    for overrides, expected in cases:
         env = make_env(compose([*overrides, "env.num_envs=2"]))
         assert find_transform(env, JumpingDistribution).decay_frames == expected
         env.close()

@@ -69,9 +69,9 @@ def random_inputs(n, hover, max_speed, seed=0):
     return odometry, goal, previous
 
 
-def torch_reference(policy_path, odometry, goal, previous):
-    """What the env + the deterministic torch actor command: PolicyObservation.build, the actor's
-    mean, MotorSpeedAction.to_command, the env's clip to [0, max]."""
+def torch_reference(policy_path, odometry, goal, previous, integral=None):
+    """What the env + the deterministic torch actor command: PolicyObservation.integrate and
+    .build, the actor's mean, MotorSpeedAction.to_command, the env's clip to [0, max]."""
     actor, payload = load_policy(policy_path)
     s = policy_settings(payload)
     action = MotorSpeedAction(s["hover_speed"], s["max_rotor_speed"], s["action_map"])
@@ -80,8 +80,13 @@ def torch_reference(policy_path, odometry, goal, previous):
         s["hover_speed"],
         include_acceleration=s["include_acceleration"],
         command_to_action=action.to_action,
+        position_integral=s["position_integral"],
+        dt=1.0 / s["control_hz"],
+        kind=s["observation"],
     )
-    obs = observation.build(odometry, goal, action.to_action(previous).clamp(-1, 1))
+    if s["position_integral"]:
+        integral = observation.integrate(integral, odometry, goal)
+    obs = observation.build(odometry, goal, action.to_action(previous).clamp(-1, 1), integral)
     with torch.no_grad(), set_exploration_type(ExplorationType.DETERMINISTIC):
         mean = actor(TensorDict({"observation": obs}, batch_size=[len(obs)])).get("action")
     return action.to_command(mean).clamp(0.0, s["max_rotor_speed"]), s
@@ -93,12 +98,18 @@ def test_onnx_matches_the_torch_policy(models, name):
     _, payload = load_policy(policy_path)
     s = policy_settings(payload)
     odometry, goal, previous = random_inputs(1000, s["hover_speed"], s["max_rotor_speed"])
-    expected, s = torch_reference(policy_path, odometry, goal, previous)
+    integral = 0.5 * (2 * torch.rand(1000, 3, generator=torch.Generator().manual_seed(2)) - 1)
+    expected, s = torch_reference(policy_path, odometry, goal, previous, integral)
     session = ort.InferenceSession(str(onnx_path), providers=["CPUExecutionProvider"])
-    assert [i.name for i in session.get_inputs()] == ["odometry", "goal", "previous_motor_speeds"]
-    assert [o.name for o in session.get_outputs()] == ["motor_speeds"]
+    inputs, outputs = ["odometry", "goal", "previous_motor_speeds"], ["motor_speeds"]
     feeds = {"odometry": odometry.numpy(), "goal": goal.numpy(), "previous_motor_speeds": previous.numpy()}
-    (got,) = session.run(None, feeds)
+    if s["position_integral"]:
+        inputs.append("position_error_integral")
+        outputs.append("next_position_error_integral")
+        feeds["position_error_integral"] = integral.numpy()
+    assert [i.name for i in session.get_inputs()] == inputs
+    assert [o.name for o in session.get_outputs()] == outputs
+    got = session.run(None, feeds)[0]
     assert got.shape == (1000, 4) and got.dtype == np.float32
     diff = np.abs(got - expected.numpy()).max() / s["hover_speed"]
     assert diff <= TOLERANCE, f"max |onnx - torch| = {diff:.2e} hover speeds"
@@ -107,17 +118,19 @@ def test_onnx_matches_the_torch_policy(models, name):
     assert inside.float().mean() > 0.5
     assert got.min() >= 0.0 and got.max() <= s["max_rotor_speed"]
     # dynamic batch: one row gives the same numbers
-    (one,) = session.run(None, {k: v[:1] for k, v in feeds.items()})
+    one = session.run(None, {k: v[:1] for k, v in feeds.items()})[0]
     np.testing.assert_allclose(one, got[:1], rtol=0, atol=TOLERANCE * s["hover_speed"])
 
 
 def test_metadata_records_how_to_fly(models, tmp_path):
     meta = read_metadata(models["pretrained"][1])
     assert meta["control_hz"] == 100.0 and meta["action_map"] == "thrust"
+    assert meta["position_integral"] and meta["observation"] == "heading"  # the default since the robust extras
     assert meta["hover_speed"] == pytest.approx(AirframeParams().hover_speed)
     assert meta["max_rotor_speed"] == 838.0 and meta["policy_format"] == "bfc-policy-v1"
     meta = read_metadata(models["tiny"][1])
     assert meta["control_hz"] == 250.0 and meta["action_map"] == "speed" and meta["include_acceleration"]
+    assert not meta["position_integral"]
     assert meta["hover_speed"] == pytest.approx(AirframeParams(body_mass=0.8).hover_speed)
     assert meta["max_rotor_speed"] == 900.0
     # files written before `action_map` existed were trained with the speed map
@@ -185,3 +198,53 @@ def test_cli_writes_a_model_and_fails_cleanly(tmp_path, capsys):
     lines = missing.stderr.strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith("error: no policy file at"), missing.stderr
     assert not (tmp_path / "x.onnx").exists()
+
+
+def test_integral_policy_exports_its_state_and_flies_as_the_env_does(tmp_path):
+    """A policy with `model.position_integral`: the graph takes and returns the integral, and the
+    ONNX controller, feeding it back, flies the same flight as the torch policy in the env."""
+    from bfc.evaluation import fly
+
+    torch.manual_seed(1)
+    actor = make_actor(25, [16], "tanh", 0.2)
+    with torch.no_grad():
+        for p in actor.module[0].module.mean.parameters():
+            p.normal_(0.0, 0.1)
+        last = actor.module[0].module.mean[-1]
+        last.weight[:, 22:25].normal_(0.0, 2.0)  # the integral inputs matter
+    save_policy(
+        tmp_path / "integral.pt",
+        actor,
+        model={
+            "actor_hidden": [16],
+            "critic_hidden": [8],
+            "activation": "tanh",
+            "init_std": 0.2,
+            "action_map": "thrust",
+            "include_acceleration": False,
+            "position_integral": True,
+        },
+        env={"control_hz": 100.0},
+        observation={"size": 25, "include_acceleration": False, "position_integral": True},
+        info={},
+    )
+    onnx_path = export_onnx(tmp_path / "integral.pt", tmp_path / "integral.onnx")
+    session = ort.InferenceSession(str(onnx_path), providers=["CPUExecutionProvider"])
+    assert [i.name for i in session.get_inputs()] == [
+        "odometry",
+        "goal",
+        "previous_motor_speeds",
+        "position_error_integral",
+    ]
+    assert [o.name for o in session.get_outputs()] == ["motor_speeds", "next_position_error_integral"]
+    controller = OnnxController(onnx_path)
+    assert controller.metadata["position_integral"]
+    # near the goal (inside the integration radius), hovering: the integral grows and is used
+    starts = torch.zeros(8, 12)
+    starts[:, 0:3] = torch.tensor([0.0, 0.0, 1.5]) + 0.1 * torch.randn(8, 3)
+    by_torch = fly(str(tmp_path / "integral.pt"), starts, seconds=0.3)
+    by_onnx = fly(controller, starts, seconds=0.3, control_hz=100.0)
+    torch.testing.assert_close(
+        by_onnx.get("action"), by_torch.get("action"), rtol=0, atol=1e-3 * controller.hover_speed
+    )
+    assert controller.integral.shape == (8, 3) and np.abs(controller.integral).max() > 1e-3

@@ -102,13 +102,44 @@ class StartParams:
 @dataclass
 class RandomizeParams:
     """Per-episode randomisation of the world (domain randomisation), drawn at every reset from
-    the env's generator; all off by default (then nothing is drawn and runs are unchanged)."""
+    the env's generator; all off by default (then nothing is drawn and runs are unchanged).
+
+    Airframe ranges are multipliers [low, high] of the nominal value, uniform per episode. Motor
+    constant and motor lag are continuous (per-env columns of the NumPy motor model); mass and
+    inertia change the rigid body, so they take `levels` evenly spaced values each and every env
+    flies one of the precompiled MjModels (one threaded rollout still steps them all).
+    """
 
     external_force: float = 0.0  # N: a constant horizontal force, random direction, size uniform in [0, this]
+    mass: tuple[float, float] = (1.0, 1.0)  # x body_mass
+    inertia: tuple[float, float] = (1.0, 1.0)  # x the base link's inertia (all three axes)
+    motor_constant: tuple[float, float] = (1.0, 1.0)  # x k_f (thrust per speed squared)
+    motor_lag: tuple[float, float] = (1.0, 1.0)  # x both motor time constants
+    levels: int = 5  # distinct masses (and inertias) compiled when their range is not a point
 
     def __post_init__(self) -> None:
         v = self.external_force
         _check(isinstance(v, (int, float)) and math.isfinite(v) and v >= 0, "env.randomize.external_force", ">= 0", v)
+        for name in AIRFRAME_RANGES:
+            r = getattr(self, name)
+            ok = (
+                isinstance(r, (tuple, list))
+                and len(r) == 2
+                and all(isinstance(x, (int, float)) and math.isfinite(x) for x in r)
+                and 0 < r[0] <= r[1]
+            )
+            _check(ok, f"env.randomize.{name}", "[low, high] multipliers with 0 < low <= high", r)
+            setattr(self, name, (float(r[0]), float(r[1])))
+        _check(
+            isinstance(self.levels, int) and self.levels >= 2, "env.randomize.levels", "an integer >= 2", self.levels
+        )
+
+    def active(self, name: str) -> bool:
+        low, high = getattr(self, name)
+        return not (low == high == 1.0)
+
+
+AIRFRAME_RANGES = ("mass", "inertia", "motor_constant", "motor_lag")
 
 
 def _body_xy_velocity(phys: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -221,7 +252,11 @@ class QuadrotorEnv(EnvBase):
 
         self.model = build_model(self.airframe, self.physics_dt)
         self._datas = [mujoco.MjData(self.model) for _ in range(num_threads)]
-        self._models = [self.model] * num_envs  # rollout's fast path takes one model per env
+        # One model per env for the rollout: the nominal one, or with mass / inertia randomised a
+        # pool of compiled variants (index = mass level * inertia levels + inertia level).
+        self._pool, self._mass_levels, self._inertia_levels = self._model_pool()
+        self._model_index = torch.zeros(num_envs, dtype=torch.long)
+        self._models = [self.model] * num_envs
         self._rollout = mujoco.rollout.Rollout(nthread=num_threads)
         self._nstate = mujoco.mj_stateSize(self.model, mujoco.mjtState.mjSTATE_FULLPHYSICS)
         assert self._nstate == 14, "asset layout changed: update the state slices"
@@ -244,17 +279,78 @@ class QuadrotorEnv(EnvBase):
         self._steps = torch.zeros(n, dtype=torch.long)
         self._steps_np = self._steps.numpy()
         self._goal = torch.tensor(goal, dtype=torch.float32).expand(n, 3).clone()
-        # Closed-form motor lag: the decay exp(-t / tau) at each substep's midpoint (for the thrust
-        # of that substep) and at the end of the step, for speeding up and for slowing down.
-        mid = ((np.arange(substeps) + 0.5) * physics_dt).reshape(1, substeps, 1)
-        up, down = self.airframe.time_constant_up, self.airframe.time_constant_down
-        self._decay_sub = (np.exp(-mid / up), np.exp(-mid / down))
-        # (NumPy's exp on arrays, as the step computed it before: the same bits)
-        self._decay_step = (np.exp(-np.array(self.dt) / up), np.exp(-np.array(self.dt) / down))
+        # Per-env motor model (randomised per episode by `env.randomize`, else the nominal values):
+        # thrust constant k_f and the closed-form motor lag, the decay exp(-t / tau) at each
+        # substep's midpoint (for the thrust of that substep) and at the end of the step, for
+        # speeding up and for slowing down.
+        self._motor_scale = torch.ones(n, 2, dtype=f64)  # x motor_constant, x time constants
+        self._motor_scale_np = self._motor_scale.numpy()
+        self._kf = np.full((n, 1, 1), self.airframe.motor_constant)
+        self._mid = ((np.arange(substeps) + 0.5) * physics_dt).reshape(1, substeps, 1)
+        self._decay_sub = (np.empty((n, substeps, 1)), np.empty((n, substeps, 1)))
+        self._decay_step = (np.empty((n, 1)), np.empty((n, 1)))
+        self._apply_motor_scale(np.ones(n, dtype=bool))
         self._cos_ground_tilt = math.cos(math.radians(self.termination.ground_tilt_deg))
         self._generator = torch.Generator()
         self._generator.manual_seed(0 if seed is None else seed)
         self._make_specs()
+
+    def _model_pool(self):
+        """The compiled bodies envs may fly: [nominal], or mass x inertia levels of `randomize`."""
+        r = self.randomize
+        masses = np.linspace(*r.mass, r.levels) if r.active("mass") else np.ones(1)
+        inertias = np.linspace(*r.inertia, r.levels) if r.active("inertia") else np.ones(1)
+        if len(masses) == len(inertias) == 1:
+            return None, masses, inertias
+        a, pool = self.airframe, np.empty(len(masses) * len(inertias), dtype=object)
+        for i, mass in enumerate(masses):
+            for j, inertia in enumerate(inertias):
+                body = AirframeParams(
+                    **{**asdict(a), "body_mass": a.body_mass * mass, "inertia": tuple(v * inertia for v in a.inertia)}
+                )
+                pool[i * len(inertias) + j] = build_model(body, self.physics_dt)
+        return pool, masses, inertias
+
+    def _apply_motor_scale(self, m: np.ndarray) -> None:
+        """Recompute the motor model of the envs in mask `m` from `_motor_scale`."""
+        a, scale = self.airframe, self._motor_scale_np[m]
+        self._kf[m, 0, 0] = a.motor_constant * scale[:, 0]
+        taus = (a.time_constant_up, a.time_constant_down)
+        for decay_sub, decay_step, tau in zip(self._decay_sub, self._decay_step, taus, strict=True):
+            t = (tau * scale[:, 1]).reshape(-1, 1, 1)
+            decay_sub[m] = np.exp(-self._mid / t)
+            decay_step[m] = np.exp(-self.dt / t[:, 0])
+
+    @property
+    def airframe_scale(self) -> dict:
+        """Each env's flown airframe as multipliers of the nominal one (N,) each: what
+        `env.randomize` drew for the current episode (all ones when off)."""
+        index = self._model_index.numpy()
+        return {
+            "mass": torch.from_numpy(self._mass_levels[index // len(self._inertia_levels)]),
+            "inertia": torch.from_numpy(self._inertia_levels[index % len(self._inertia_levels)]),
+            "motor_constant": self._motor_scale[:, 0].clone(),
+            "motor_lag": self._motor_scale[:, 1].clone(),
+        }
+
+    def _randomize_airframe(self, m: np.ndarray) -> None:
+        """Draw a new airframe for the envs in mask `m` (only the ranges that are on draw)."""
+        r, k, g = self.randomize, int(m.sum()), self._generator
+        if self._pool is not None:
+            levels_m, levels_i = len(self._mass_levels), len(self._inertia_levels)
+            i = torch.randint(levels_m, (k,), generator=g) if levels_m > 1 else torch.zeros(k, dtype=torch.long)
+            j = torch.randint(levels_i, (k,), generator=g) if levels_i > 1 else torch.zeros(k, dtype=torch.long)
+            self._model_index.numpy()[m] = (i * levels_i + j).numpy()
+            self._models = self._pool[self._model_index.numpy()].tolist()
+        changed = False
+        for col, name in enumerate(("motor_constant", "motor_lag")):
+            if r.active(name):
+                low, high = getattr(r, name)
+                u = torch.rand(k, generator=g, dtype=torch.float64).numpy()
+                self._motor_scale_np[m, col] = low + (high - low) * u
+                changed = True
+        if changed:
+            self._apply_motor_scale(m)
 
     # ----------------------------------------------------------------- specs
     def _make_specs(self) -> None:
@@ -331,7 +427,7 @@ class QuadrotorEnv(EnvBase):
         return torch.from_numpy(start)
 
     # ----------------------------------------------------------------- state (checkpoints)
-    _STATE = ("physics", "motor", "lin_acc", "ang_acc", "steps", "goal", "ctrl")
+    _STATE = ("physics", "motor", "lin_acc", "ang_acc", "steps", "goal", "ctrl", "motor_scale", "model_index")
 
     def get_extra_state(self) -> dict:
         """Everything that evolves between steps (physics, motor speeds, accelerations, step
@@ -343,6 +439,12 @@ class QuadrotorEnv(EnvBase):
         return state
 
     def set_extra_state(self, state: dict) -> None:
+        missing = [name for name in self._STATE if name not in state]
+        if missing:
+            raise ValueError(
+                f"env state lacks {', '.join(missing)}: "
+                "a checkpoint from an older bfc version, which this one cannot resume"
+            )
         for name in self._STATE:
             mine, theirs = getattr(self, f"_{name}"), state[name]
             if theirs.shape != mine.shape:
@@ -353,6 +455,9 @@ class QuadrotorEnv(EnvBase):
             mine.copy_(theirs)  # in place: the NumPy views of the hot path stay valid
         self._generator.set_state(state["generator"])
         self.physics_failures = int(state["physics_failures"])
+        self._apply_motor_scale(np.ones(self.num_envs, dtype=bool))
+        if self._pool is not None:
+            self._models = self._pool[self._model_index.numpy()].tolist()
 
     # ----------------------------------------------------------------- TorchRL hooks
     def _set_seed(self, seed: int | None) -> None:
@@ -405,6 +510,7 @@ class QuadrotorEnv(EnvBase):
             size, angle = u[:, 0] * self.randomize.external_force, (u[:, 1] * 2 - 1) * math.pi
             force = np.stack((size * np.cos(angle), size * np.sin(angle), np.zeros_like(size)), -1)
             self._ctrl_np[m, :, 8:11] = force[:, None, :]
+        self._randomize_airframe(m)
 
     def _step(self, tensordict: TensorDictBase) -> TensorDictBase:
         action = tensordict.get(keys.ACTION)
@@ -430,7 +536,7 @@ class QuadrotorEnv(EnvBase):
         thrust *= lag[:, None]
         thrust += cmd[:, None]
         ctrl = self._ctrl_np
-        np.multiply(a.motor_constant * thrust, thrust, out=ctrl[:, :, 0:4])
+        np.multiply(self._kf * thrust, thrust, out=ctrl[:, :, 0:4])
         old = self._physics_np.copy()
         vx, vy = _body_xy_velocity(old)
         spin = w0[:, 0] + w0[:, 1] + w0[:, 2] + w0[:, 3]  # motor speeds are never negative

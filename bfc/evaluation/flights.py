@@ -172,6 +172,8 @@ def fly(
         model = {
             "action_map": payload["model"].get("action_map", "speed"),
             "include_acceleration": payload["observation"]["include_acceleration"],
+            "position_integral": payload["observation"].get("position_integral", False),
+            "observation": payload["observation"].get("kind", "heading"),
         }
     else:
         allowed = f"a policy.pt path, one of {sorted(CONTROLLERS)} or a TensorDictModule"

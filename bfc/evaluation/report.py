@@ -247,7 +247,9 @@ def runs_sections(runs_dir: Path, out: Path) -> list[str]:
     by_variant: dict[str, list[dict]] = {}
     for summary_path in sorted(runs_dir.rglob("summary.json")):
         cfg = yaml.safe_load((summary_path.parent / "config.yaml").read_text())
-        by_variant.setdefault(cfg.get("variant", "?"), []).append(
+        algo = (cfg.get("algo") or {}).get("name", "ppo")  # ppo rows keep the variant's own name
+        label = cfg.get("variant", "?") if algo == "ppo" else f"{algo} {cfg.get('variant', '?')}"
+        by_variant.setdefault(label, []).append(
             {
                 "dir": summary_path.parent,
                 "seed": cfg["seed"],

@@ -1,4 +1,5 @@
-"""PPO: the losses (clipped, eq. 11, or adaptive KL penalty, eq. 12), GAE (eq. 15) and the update."""
+"""PPO: the losses (clipped, eq. 11, or adaptive KL penalty, eq. 12), GAE (eq. 15) and the update;
+the learner interface every algorithm shares (`make_learner`: ppo here, trpo.py, ddpg.py)."""
 
 from __future__ import annotations
 
@@ -34,7 +35,7 @@ LOSS_TAGS = {
 
 def make_models(cfg, obs_size: int, action_spec=None):
     m = cfg.model
-    actor = make_actor(obs_size, m.actor_hidden, m.activation, m.init_std, action_spec=action_spec)
+    actor = make_actor(obs_size, m.actor_hidden, m.activation, m.init_std, action_spec=action_spec, squash=m.squash)
     critic = make_critic(obs_size, m.critic_hidden, m.activation)
     return actor, critic
 
@@ -65,6 +66,47 @@ def compute_advantage(data: TensorDictBase, advantage) -> None:
     data.set("state_value", value)
     data.set(("next", "state_value"), next_value)
     advantage(data)
+
+
+class PPO:
+    """The PPO learner. Every learner (PPO, `trpo.TRPO`, `ddpg.DDPG`) has this interface:
+    `update(data) -> metrics`, `optimizers` (the learning-rate anneal scales them all) and
+    `state_dict()` / `load_state_dict()` (its part of a checkpoint)."""
+
+    def __init__(self, cfg, actor, critic):
+        self.cfg = cfg
+        self.loss_module, self.advantage = make_loss(cfg, actor, critic)
+        self.optimizer = torch.optim.Adam(self.loss_module.parameters(), lr=cfg.optim.lr)
+        self.optimizers = [self.optimizer]
+
+    def update(self, data: TensorDictBase) -> dict[str, float]:
+        return ppo_update(data, self.loss_module, self.advantage, self.optimizer, self.cfg)
+
+    def state_dict(self) -> dict:
+        return {"optimizer": self.optimizer.state_dict(), "loss": self.loss_module.state_dict()}
+
+    def load_state_dict(self, state: dict) -> None:
+        self.optimizer.load_state_dict(state["optimizer"])
+        self.loss_module.load_state_dict(state["loss"], strict=False)
+
+
+def make_learner(cfg, actor, critic):
+    """The learner `algo.name` names (ppo, trpo, ddpg)."""
+    name = cfg.algo.name
+    if name == "ppo":
+        return PPO(cfg, actor, critic)
+    if name == "trpo":
+        from bfc.training.trpo import TRPO
+
+        return TRPO(cfg, actor, critic)
+    if name == "ddpg":
+        from bfc.training.ddpg import DDPG
+
+        return DDPG(cfg, actor, critic)
+    raise ValueError(f"algo.name must be one of {', '.join(ALGORITHMS)}, got {name!r}")
+
+
+ALGORITHMS = ("ppo", "trpo", "ddpg")
 
 
 def ppo_update(data: TensorDictBase, loss_module, advantage, optimizer, cfg) -> dict[str, float]:

@@ -32,7 +32,7 @@ from bfc.collectors import episode_stats, make_collector
 from bfc.evaluation.evaluator import ProtocolEvaluator
 from bfc.factory import find_transform, make_env
 from bfc.policy import atomic_save, save_policy
-from bfc.training.ppo import make_loss, make_models, ppo_update
+from bfc.training.ppo import make_learner, make_models
 from bfc.transforms import ControlledStartingState, JumpingDistribution, PolicyObservation
 
 PAPER_SUCCESS = 0.905
@@ -59,6 +59,7 @@ def css_figure(css: ControlledStartingState):
 def hparams(cfg) -> dict:
     return {
         "variant": cfg.variant,
+        "algo": cfg.algo.name,
         "jd": cfg.jd.enabled,
         "css": cfg.css.enabled,
         "tdts": cfg.tdts.enabled,
@@ -109,8 +110,7 @@ class Runner:
         self.env = make_env(cfg, seed=cfg.seed)
         self.obs = find_transform(self.env, PolicyObservation)
         self.actor, self.critic = make_models(cfg, self.obs.size, action_spec=self.env.action_spec)
-        self.loss_module, self.advantage = make_loss(cfg, self.actor, self.critic)
-        self.optimizer = torch.optim.Adam(self.loss_module.parameters(), lr=cfg.optim.lr)
+        self.learner = make_learner(cfg, self.actor, self.critic)
         self.jd = find_transform(self.env, JumpingDistribution)
         self.css = find_transform(self.env, ControlledStartingState)
         self.evaluator = ProtocolEvaluator(cfg)
@@ -135,8 +135,7 @@ class Runner:
             "best_error": self.best_error,
             "actor": self.actor.state_dict(),
             "critic": self.critic.state_dict(),
-            "optimizer": self.optimizer.state_dict(),
-            "loss": self.loss_module.state_dict(),
+            **self.learner.state_dict(),
             "collector": self.collector.state_dict(),
             "torch_rng": torch.get_rng_state(),
         }
@@ -152,8 +151,7 @@ class Runner:
     def load(self, ckpt: dict) -> None:
         self.actor.load_state_dict(ckpt["actor"])
         self.critic.load_state_dict(ckpt["critic"])
-        self.optimizer.load_state_dict(ckpt["optimizer"])
-        self.loss_module.load_state_dict(ckpt["loss"], strict=False)
+        self.learner.load_state_dict(ckpt)
         self.frames, self.batches, self.wall = int(ckpt["frames"]), int(ckpt["batches"]), float(ckpt["wall"])
         self.history, self.best = list(ckpt["history"]), float(ckpt["best"])
         self.best_error = float(ckpt.get("best_error", math.inf))
@@ -166,7 +164,12 @@ class Runner:
             self.actor,
             model=OmegaConf.to_container(self.cfg.model, resolve=True),
             env=OmegaConf.to_container(self.cfg.env, resolve=True),
-            observation={"size": self.obs.size, "include_acceleration": self.obs.include_acceleration},
+            observation={
+                "size": self.obs.size,
+                "include_acceleration": self.obs.include_acceleration,
+                "position_integral": self.obs.position_integral,
+                "kind": self.obs.kind,
+            },
             info={"frames": self.frames, "wall_seconds": round(self.wall, 1), "seed": int(self.cfg.seed)},
         )
 
@@ -277,10 +280,13 @@ class Runner:
         self.batches += 1
         torch.set_num_threads(cfg.torch_threads)  # the update: torch gets the cores
         if cfg.optim.anneal_lr:  # linear decay to 0 at the last frame (CleanRL's recipe)
-            for group in self.optimizer.param_groups:
-                group["lr"] = cfg.optim.lr * max(0.0, 1.0 - (self.frames - n) / self.total)
-        metrics = ppo_update(data, self.loss_module, self.advantage, self.optimizer, cfg)
-        metrics["train/lr"] = self.optimizer.param_groups[0]["lr"]
+            factor = max(0.0, 1.0 - (self.frames - n) / self.total)
+            for optimizer in self.learner.optimizers:
+                for group in optimizer.param_groups:
+                    group.setdefault("initial_lr", group["lr"])
+                    group["lr"] = group["initial_lr"] * factor
+        metrics = self.learner.update(data)
+        metrics["train/lr"] = self.learner.optimizers[0].param_groups[0]["lr"]
         self.collector.update_policy_weights_()
         return metrics
 

@@ -8,6 +8,16 @@ world-frame vectors learns a preferred heading and turns to it, flipping over wh
 near yaw +-180 deg (measured: 15-25% crashes on the protocol's starts).
 The scales bring each part to order 1; they are fixed, so a policy file needs no running
 statistics. Accelerations (finite differences, noisy) are left out by default.
+
+`kind="odometry"` is the paper's observation instead (for `+preset=paper`): the 18 odometry
+numbers as they come, the position made relative to the goal, no previous command, no scaling.
+
+`position_integral=True` adds the integral of the position error (3 numbers, heading frame): a
+memoryless policy cannot tell a heavier body, a weaker motor or wind from its own error, so it
+hovers off the goal by the offset such a disturbance needs; with the integral it can remove it,
+as the integral term of a PID does. It integrates only within `integral_radius` of the goal (no
+wind-up while flying in from afar) and is clipped to +-`integral_limit` (m s); it restarts at
+zero with each episode.
 """
 
 from __future__ import annotations
@@ -19,6 +29,8 @@ from torchrl.data import Composite, Unbounded
 from bfc import keys
 from bfc.envs.rotations import euler_to_quat, quat_to_matrix
 from bfc.transforms._base import BatchedTransform, check, reset_mask
+
+OBSERVATIONS = ("heading", "odometry")
 
 
 def to_heading_frame(v: torch.Tensor, yaw: torch.Tensor) -> torch.Tensor:
@@ -39,6 +51,12 @@ class PolicyObservation(BatchedTransform):
         include_acceleration: bool = False,
         acceleration_scale: float = 0.05,
         command_to_action=None,
+        position_integral: bool = False,
+        dt: float = 0.01,
+        integral_radius: float = 0.3,
+        integral_limit: float = 0.5,
+        integral_scale: float = 4.0,
+        kind: str = "heading",
     ):
         super().__init__(num_envs, in_keys=[keys.ODOMETRY, keys.GOAL], out_keys=[keys.OBSERVATION])
         check(hover_speed > 0, "hover_speed", "> 0", hover_speed)
@@ -49,13 +67,38 @@ class PolicyObservation(BatchedTransform):
         self.angular_velocity_scale = float(angular_velocity_scale)
         self.include_acceleration = bool(include_acceleration)
         self.acceleration_scale = float(acceleration_scale)
-        self.size = 22 + (6 if include_acceleration else 0)
+        self.position_integral = bool(position_integral)
+        check(dt > 0, "dt", "> 0", dt)
+        self.dt, self.integral_radius = float(dt), float(integral_radius)
+        self.integral_limit, self.integral_scale = float(integral_limit), float(integral_scale)
+        check(kind in OBSERVATIONS, "model.observation", " or ".join(OBSERVATIONS), kind)
+        self.kind = kind
+        base = 18 if kind == "odometry" else 22 + (6 if include_acceleration else 0)
+        self.size = base + (3 if position_integral else 0)
         # the previous command is shown in the policy's own action space (MotorSpeedAction.to_action)
         self.command_to_action = command_to_action or (lambda command: command / self.hover_speed - 1.0)
         self.register_buffer("last_action", torch.zeros(num_envs, 4))
+        self.register_buffer("integral", torch.zeros(num_envs, 3))  # world frame, m s
 
-    def build(self, odometry: torch.Tensor, goal: torch.Tensor, last_action: torch.Tensor) -> torch.Tensor:
+    def integrate(self, integral: torch.Tensor, odometry: torch.Tensor, goal: torch.Tensor) -> torch.Tensor:
+        """The position-error integral after one more control step (world frame)."""
+        error = odometry[..., 0:3] - goal
+        near = (error.square().sum(-1, keepdim=True) < self.integral_radius**2).to(error.dtype)
+        return (integral + near * error * self.dt).clamp(-self.integral_limit, self.integral_limit)
+
+    def build(
+        self,
+        odometry: torch.Tensor,
+        goal: torch.Tensor,
+        last_action: torch.Tensor,
+        integral: torch.Tensor | None = None,
+    ) -> torch.Tensor:
         yaw = odometry[..., 11]
+        if self.kind == "odometry":
+            parts = [odometry[..., 0:3] - goal, odometry[..., 3:18]]
+            if self.position_integral:
+                parts.append(self._integral_input(integral, yaw))
+            return torch.cat(parts, -1)
         level = torch.cat((odometry[..., 9:11], torch.zeros_like(yaw).unsqueeze(-1)), -1)
         rot = quat_to_matrix(euler_to_quat(level)).flatten(-2)  # roll and pitch only
         rel = to_heading_frame(odometry[..., 0:3] - goal, yaw).clamp(-self.position_clip, self.position_clip)
@@ -68,20 +111,33 @@ class PolicyObservation(BatchedTransform):
         ]
         if self.include_acceleration:
             parts += [odometry[..., 6:9] * self.acceleration_scale, odometry[..., 15:18] * self.acceleration_scale]
+        if self.position_integral:
+            parts.append(self._integral_input(integral, yaw))
         return torch.cat(parts, -1)
 
+    def _integral_input(self, integral: torch.Tensor | None, yaw: torch.Tensor) -> torch.Tensor:
+        if integral is None:
+            raise ValueError("this observation has a position_integral: pass the integral (N, 3)")
+        return to_heading_frame(integral, yaw) * self.integral_scale
+
     def _call(self, td: TensorDictBase) -> TensorDictBase:
-        td.set(keys.OBSERVATION, self.build(td.get(keys.ODOMETRY), td.get(keys.GOAL), self.last_action.clone()))
+        obs = self.build(td.get(keys.ODOMETRY), td.get(keys.GOAL), self.last_action.clone(), self.integral.clone())
+        td.set(keys.OBSERVATION, obs)
         return td
 
     def _step(self, tensordict: TensorDictBase, next_tensordict: TensorDictBase) -> TensorDictBase:
         # The action here is the motor command in rad/s (inverse transforms already ran).
         command = tensordict.get(keys.ACTION)
         self.last_action.copy_(self.command_to_action(command).clamp(-1, 1))
+        if self.position_integral:
+            odometry, goal = next_tensordict.get(keys.ODOMETRY), next_tensordict.get(keys.GOAL)
+            self.integral.copy_(self.integrate(self.integral, odometry, goal))
         return self._call(next_tensordict)
 
     def _reset(self, tensordict: TensorDictBase, tensordict_reset: TensorDictBase) -> TensorDictBase:
-        self.last_action.masked_fill_(reset_mask(tensordict, self.num_envs).unsqueeze(-1), 0.0)
+        mask = reset_mask(tensordict, self.num_envs).unsqueeze(-1)
+        self.last_action.masked_fill_(mask, 0.0)
+        self.integral.masked_fill_(mask, 0.0)
         return self._call(tensordict_reset)
 
     def transform_observation_spec(self, observation_spec: Composite) -> Composite:

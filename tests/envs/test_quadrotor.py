@@ -4,6 +4,7 @@ import math
 
 import pytest
 import torch
+from tensordict import TensorDict
 from torchrl.envs.utils import check_env_specs
 
 from bfc import keys
@@ -342,3 +343,62 @@ def test_evaluation_envs_leave_training_randomisation_off():
     train_env.reset()
     eval_env.reset()
     assert (train_env.base_env.external_force != 0).any() and (eval_env.base_env.external_force == 0).all()
+
+
+AIRFRAME_RANDOM = {"mass": (0.7, 1.3), "inertia": (1.0, 1.5), "motor_constant": (0.8, 1.2), "motor_lag": (1.0, 3.0)}
+
+
+def test_randomized_airframe_is_drawn_per_episode_within_its_ranges_and_reproducible():
+    from bfc.envs import RandomizeParams
+
+    def draws(seed):
+        env = QuadrotorEnv(64, randomize=AIRFRAME_RANDOM, seed=seed)
+        env.reset()
+        first = env.airframe_scale
+        env.reset()
+        second = env.airframe_scale
+        env.close()
+        return first, second
+
+    first, second = draws(3)
+    for name, (low, high) in AIRFRAME_RANDOM.items():
+        v = first[name]
+        assert v.min() >= low - 1e-12 and v.max() <= high + 1e-12, name
+        assert v.max() - v.min() > 0.6 * (high - low), name  # spread over the range
+        assert not torch.equal(v, second[name]), name  # a new airframe every episode
+        assert torch.equal(draws(3)[0][name], v) and not torch.equal(draws(4)[0][name], v), name  # by seed
+    # mass and inertia take `levels` values (precompiled bodies), the motor ones are continuous
+    assert len(first["mass"].unique()) == 5 and len(first["motor_constant"].unique()) == 64
+    off = QuadrotorEnv(4, seed=3)
+    off.reset()
+    assert all((v == 1).all() for v in off.airframe_scale.values())
+    with pytest.raises(ValueError, match="env.randomize.mass"):
+        RandomizeParams(mass=(1.3, 0.7))
+    with pytest.raises(ValueError, match="env.randomize.levels"):
+        RandomizeParams(levels=1)
+
+
+def test_randomized_airframe_changes_the_flown_physics():
+    """Under the nominal hover command, a heavier or weaker-motored body sinks, a lighter or
+    stronger one climbs, in proportion; a slower motor lags more behind a step in the command."""
+    env = QuadrotorEnv(256, randomize=AIRFRAME_RANDOM, start_motors="hover", seed=0)
+    start = torch.zeros(256, 12, dtype=torch.float64)
+    start[:, 2] = 1.5
+    td = env.reset(TensorDict({"start_state": start}, batch_size=[256]))
+    scale = env.airframe_scale
+    td["action"] = torch.full((256, 4), env.hover_speed * 1.1, dtype=torch.float32)
+    for _ in range(10):
+        td = env.step(td)["next"].set("action", td["action"])
+    vz = td["state", "linear_velocity"][:, 2].double()
+    # thrust / weight at 1.1 x hover speed, nominal thrust and weight ratio k / m (rotors and imu unscaled)
+    a = env.airframe
+    mass = a.body_mass * scale["mass"] + 4 * a.rotor_mass + a.imu_mass
+    ratio = 1.21 * scale["motor_constant"] * a.total_mass / mass
+    assert torch.corrcoef(torch.stack((vz, ratio)))[0, 1] > 0.9
+    # the motor lag: after the step 0 -> hover, slower motors are further from the command
+    env2 = QuadrotorEnv(64, randomize={"motor_lag": (1.0, 3.0)}, seed=1)
+    td = env2.reset(TensorDict({"start_state": start[:64]}, batch_size=[64]))
+    td["action"] = torch.full((64, 4), env2.hover_speed, dtype=torch.float32)
+    env2.step(td)
+    lagging = env2.hover_speed - env2._motor[:, 0]
+    assert torch.corrcoef(torch.stack((lagging, env2.airframe_scale["motor_lag"])))[0, 1] > 0.95

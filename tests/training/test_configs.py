@@ -4,6 +4,7 @@ import subprocess
 import sys
 
 import pytest
+import torch
 
 from bfc.config import ABLATIONS, validate
 
@@ -15,6 +16,7 @@ SWITCHES = ("jd", "css", "tdts")
 def test_default_is_the_full_bfc():
     cfg = compose_cfg()
     assert all(cfg[s].enabled for s in SWITCHES)
+    assert cfg.variant == "jd_css_tdts_robust"
     for key in ("seed", "env.num_envs", "collector.total_frames", "collector.frames_per_batch"):
         node = cfg
         for part in key.split("."):
@@ -33,6 +35,28 @@ def test_each_ablation_switches_exactly_what_its_name_says(name):
     parts = set(name.split("_")) - {"ppo"}
     assert {s for s in SWITCHES if cfg[s].enabled} == parts
     assert cfg.variant == name
+    # the paper's variants leave bfc's robust extras out: the same task as extras=none
+    plain = compose_cfg([f"+ablation={name}", "extras=none"])
+    assert cfg == plain
+
+
+def test_robust_extras_are_on_by_default_and_off_for_the_paper_variants():
+    """The default = the paper's BFC + conf/extras/robust.yaml; extras=none is the paper's BFC:
+    every other key equal, with the schema's (paper) values for what the extras change."""
+    from omegaconf import OmegaConf
+
+    from bfc.config import Config
+
+    robust, plain = compose_cfg(), compose_cfg(["extras=none"])
+    schema = OmegaConf.structured(Config)
+    assert plain.variant == "jd_css_tdts" and plain == compose_cfg(["+ablation=jd_css_tdts"])
+    assert robust.model.position_integral and not plain.model.position_integral
+    assert tuple(robust.env.randomize.mass) == (0.7, 1.3) and robust.env.randomize.external_force == 1.0
+    assert plain.env.randomize == schema.env.randomize and plain.jd == schema.jd and plain.optim == schema.optim
+    changed = {k for k in robust if robust[k] != plain[k]}
+    assert changed == {"variant", "model", "env", "jd", "optim"}
+    # an ablation variant can still take them on explicitly
+    assert compose_cfg(["+ablation=jd", "extras=robust"]).model.position_integral
 
 
 def test_validate_names_the_key():
@@ -70,3 +94,43 @@ def test_negative_frames_fail_with_a_clear_message():
 def test_missing_resume_dir_fails_cleanly():
     r = run_cli("resume=/nonexistent/run")
     assert r.returncode != 0 and "no checkpoints/last.pt" in r.stderr
+
+
+def test_paper_preset_sets_exactly_what_it_says():
+    """+preset=paper: 250 Hz, 2x256 actor and critic, the 18-number odometry observation, the
+    speed map, TDTS terminal, no robust extras; composable with an ablation variant; nothing else
+    differs from the paper's BFC (extras=none)."""
+    from bfc.factory import find_transform, make_env
+    from bfc.transforms import MotorSpeedAction, PolicyObservation
+
+    paper, plain = compose_cfg(["+preset=paper"]), compose_cfg(["extras=none"])
+    assert paper.env.control_hz == 250.0 and paper.tdts.as_terminal
+    assert list(paper.model.actor_hidden) == [256, 256] and list(paper.model.critic_hidden) == [256, 256]
+    assert paper.model.observation == "odometry" and paper.model.action_map == "speed"
+    assert not paper.model.position_integral and paper.env.randomize == plain.env.randomize
+    expected = {
+        "env.control_hz",
+        "tdts.as_terminal",
+        "model.actor_hidden",
+        "model.critic_hidden",
+        "model.observation",
+        "model.action_map",
+    }
+    changed = {
+        f"{s}.{k}"
+        for s in plain
+        if isinstance(plain[s], type(plain.env))
+        for k in plain[s]
+        if paper[s][k] != plain[s][k]
+    }
+    assert changed == expected
+    with_jd = compose_cfg(["+preset=paper", "+ablation=jd"])
+    assert with_jd.variant == "jd" and with_jd.env.control_hz == 250.0 and not with_jd.css.enabled
+    paper.env.num_envs = 4
+    env = make_env(paper, seed=0)
+    assert env.base_env.control_hz == 250.0 and find_transform(env, MotorSpeedAction).action_map == "speed"
+    obs = find_transform(env, PolicyObservation)
+    td = env.reset()
+    odometry, goal = td["odometry"], td["goal"]
+    assert obs.size == 18
+    torch.testing.assert_close(td["observation"], torch.cat((odometry[:, 0:3] - goal, odometry[:, 3:18]), -1))

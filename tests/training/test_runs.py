@@ -75,8 +75,16 @@ def _assert_same_checkpoint(a, b):
 
 
 def test_resumed_run_ends_like_an_uninterrupted_one(tmp_path):
-    # JD's schedule follows collector.total_frames unless set: pin it, since the "killed" run is a shorter one
-    overrides = [*TINY, "collector.total_frames=4096", "jd.decay_frames=4096", "env.episode_seconds=0.2", "seed=3"]
+    # JD's schedule and the learning-rate anneal follow collector.total_frames: pin them, since the
+    # "killed" run is a shorter one
+    overrides = [
+        *TINY,
+        "collector.total_frames=4096",
+        "jd.decay_frames=4096",
+        "optim.anneal_lr=false",
+        "env.episode_seconds=0.2",
+        "seed=3",
+    ]
     full = tmp_path / "full"
     train(compose_cfg(overrides), full)
 
@@ -99,7 +107,14 @@ def test_resumed_run_ends_like_an_uninterrupted_one(tmp_path):
 
 
 def test_a_corrupted_last_checkpoint_falls_back_one_step(tmp_path, capsys):
-    overrides = [*TINY, "collector.total_frames=3072", "jd.decay_frames=3072", "env.episode_seconds=0.2", "seed=4"]
+    overrides = [
+        *TINY,
+        "collector.total_frames=3072",
+        "jd.decay_frames=3072",
+        "optim.anneal_lr=false",  # the anneal follows total_frames, which the "killed" run shortens
+        "env.episode_seconds=0.2",
+        "seed=4",
+    ]
     full = tmp_path / "full"
     train(compose_cfg(overrides), full)
 

@@ -6,7 +6,7 @@ from torchrl.envs.utils import check_env_specs
 
 from bfc import keys
 from bfc.factory import find_transform, make_env
-from bfc.transforms import PolicyObservation
+from bfc.transforms import GivenStarts, PolicyObservation
 
 
 def full_stack(cfg, n=6):
@@ -152,3 +152,38 @@ def test_thrust_action_map_is_linear_in_thrust_and_round_trips():
     assert (w <= 838.0).all() and thrust_map._inv_apply_transform(torch.tensor([-1.0])).item() == 0.0
     with pytest.raises(ValueError, match="model.action_map"):
         MotorSpeedAction(hover, 838.0, "rpm")
+
+
+def test_position_integral_accumulates_near_the_goal_clips_and_restarts_per_env(cfg):
+    """model.position_integral: the error integrated (world frame) only within the radius, clipped,
+    zeroed for the envs that reset and no others; the policy sees it turned into the heading frame."""
+    cfg.env.num_envs = 3
+    cfg.model.position_integral = True
+    env = make_env(cfg, samplers=False, given_starts=True, seed=0)
+    obs = find_transform(env, PolicyObservation)
+    assert obs.size == 25 and env.observation_spec[keys.OBSERVATION].shape == (3, 25)
+    starts = torch.zeros(3, 12)
+    starts[:, 0:3] = torch.tensor([[0.1, 0.0, 1.5], [0.0, 0.0, 1.5 - 0.2], [1.0, 0.0, 1.5]])  # 1 m: outside
+    starts[0, 5] = torch.pi / 2  # yawed by 90 deg: the world +x error is the heading frame's -y
+    find_transform(env, GivenStarts).set_starts(starts)
+    td = env.reset()
+    assert (obs.integral == 0).all()
+    hover = torch.zeros(3, 4)
+    td = env.step(td.set(keys.ACTION, hover))["next"]
+    error = td[keys.POSITION] - env.base_env.goal
+    expected = torch.where(error.norm(dim=-1, keepdim=True) < obs.integral_radius, error * obs.dt, 0.0)
+    torch.testing.assert_close(obs.integral, expected)
+    assert obs.integral[2].abs().sum() == 0 and obs.integral[0, 0] > 0 and obs.integral[1, 2] < 0
+    seen = td[keys.OBSERVATION][:, 22:25] / obs.integral_scale
+    torch.testing.assert_close(
+        seen[0], torch.stack((0 * expected[0, 0], -expected[0, 0], expected[0, 2])), atol=1e-6, rtol=0
+    )
+    # clipped at the limit however long an error lasts
+    odometry, goal, integral = torch.zeros(1, 18), torch.zeros(1, 3), torch.zeros(1, 3)
+    odometry[0, 0:3] = torch.tensor([0.2, -0.1, 0.0])
+    for _ in range(1000):
+        integral = obs.integrate(integral, odometry, goal)
+    assert integral.tolist() == [[obs.integral_limit, -obs.integral_limit, 0.0]]
+    before = obs.integral.clone()
+    env.reset(td.clone().set("_reset", torch.tensor([[True], [False], [False]])))
+    assert (obs.integral[0] == 0).all() and torch.equal(obs.integral[1:], before[1:])

@@ -1,0 +1,88 @@
+"""Issue-12 targets for trained policies: every robustness suite on the test starts, for the final
+policy (`policy_last.pt`) of each run, plus the last three in-training evaluations of each run.
+
+    python bench/robust_targets.py outputs/bench/robust/seed0 outputs/bench/robust/seed1 ... \
+        [--policy pretrained/policy.pt] [--json out.json]
+
+A run directory is one `train.py` run (policy_last.pt, summary.json); `--policy` adds single
+policy files (e.g. the shipped one). Prints a Markdown table (success rate, hover error) and the
+targets each policy meets. Flies 100 test starts (seed 0) per suite: about 10 s per suite per
+policy on 2 cores. The flights are deterministic; the wall-clock is not.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import platform
+import time
+from pathlib import Path
+
+from bfc.evaluation.suites import SUITES, robust_results
+
+NOMINAL = ("protocol", "harsh", "any", "ground")
+# suite -> minimum success rate (issue 12); hover-error bounds in metres
+MIN_SUCCESS = {"protocol": 1.0, "ground": 1.0, "harsh": 0.99, "any": 0.97}
+MISMATCH_MIN_SUCCESS = 0.99
+HOVER_NOMINAL, HOVER_MISMATCH = 0.010, 0.015
+
+
+def targets_met(results: dict, label: str) -> list[str]:
+    """The targets `label` misses (empty: all met)."""
+    missed = []
+    for name, row in results.items():
+        s = row[label]
+        floor = MIN_SUCCESS.get(name, MISMATCH_MIN_SUCCESS)
+        if s["success_rate"] < floor:
+            missed.append(f"{name} success {s['success_rate']:.2f} < {floor}")
+        bound = HOVER_NOMINAL if name == "protocol" else HOVER_MISMATCH
+        e = s["hover_error_m"]
+        if name not in ("harsh", "any", "ground") and (e is None or e > bound):
+            missed.append(f"{name} hover {'n/a' if e is None else f'{100 * e:.1f} cm'} > {100 * bound:.1f} cm")
+    return missed
+
+
+def last_evaluations(run: Path, k: int = 3) -> list[float]:
+    summary = json.loads((run / "summary.json").read_text())
+    return [round(h["eval/success_rate"], 3) for h in summary["history"][-k:]]
+
+
+def main() -> None:
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("runs", nargs="*", type=Path, help="train.py run directories")
+    p.add_argument("--policy", nargs="*", default=[], help="extra policy files")
+    p.add_argument("--suites", nargs="*", default=list(SUITES), help=f"default: all of {', '.join(SUITES)}")
+    p.add_argument("--num-starts", type=int, default=100)
+    p.add_argument("--json", type=Path, help="also write the results here")
+    args = p.parse_args()
+    controllers = {f"{run.name} last": str(run / "policy_last.pt") for run in args.runs}
+    controllers.update({Path(path).parent.name + "/" + Path(path).name: str(path) for path in args.policy})
+    if not controllers:
+        p.error("give run directories and/or --policy files")
+    t0 = time.perf_counter()
+    results = robust_results(controllers, args.suites, args.num_starts)
+    elapsed = time.perf_counter() - t0
+    print(
+        f"# {platform.machine()}, {platform.python_version()}: {len(controllers)} policies x {len(args.suites)} suites "
+        f"x {args.num_starts} test starts in {elapsed:.0f} s"
+    )
+    labels = list(controllers)
+    print("| suite | " + " | ".join(labels) + " |")
+    print("|---|" + "---|" * len(labels))
+    for name, row in results.items():
+        cells = []
+        for label in labels:
+            s, e = row[label], row[label]["hover_error_m"]
+            cells.append(f"{s['success_rate']:.2f}, " + ("n/a" if e is None else f"{100 * e:.1f} cm"))
+        print(f"| {name} | " + " | ".join(cells) + " |")
+    for run in args.runs:
+        print(f"{run.name}: last three in-training evaluations {last_evaluations(run)}")
+    for label in labels:
+        missed = targets_met(results, label) if set(args.suites) == set(SUITES) else ["(not every suite flown)"]
+        print(f"{label}: " + ("every target met" if not missed else "misses " + "; ".join(missed)))
+    if args.json:
+        args.json.write_text(json.dumps(results, indent=1))
+
+
+if __name__ == "__main__":
+    main()
