@@ -121,7 +121,8 @@ class PolicyObservation(BatchedTransform):
         return to_heading_frame(integral, yaw) * self.integral_scale
 
     def _call(self, td: TensorDictBase) -> TensorDictBase:
-        obs = self.build(td.get(keys.ODOMETRY), td.get(keys.GOAL), self.last_action.clone(), self.integral.clone())
+        integral = self.integral.clone() if self.position_integral else None  # no copy per step when off
+        obs = self.build(td.get(keys.ODOMETRY), td.get(keys.GOAL), self.last_action.clone(), integral)
         td.set(keys.OBSERVATION, obs)
         return td
 
