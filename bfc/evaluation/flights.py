@@ -15,7 +15,7 @@ from omegaconf import OmegaConf
 from tensordict import TensorDict
 from tensordict.nn import TensorDictModuleBase
 from torchrl.envs import TransformedEnv
-from torchrl.envs.utils import ExplorationType, set_exploration_type, step_mdp
+from torchrl.envs.utils import ExplorationType, set_exploration_type
 
 from bfc import keys
 from bfc.envs import AirframeParams
@@ -64,8 +64,9 @@ def run_flights(env: TransformedEnv, policy, starts: torch.Tensor, steps: int, g
     to_rad_s = action_map.to_command if action_map is not None else (lambda a: a)
     td = env.reset()
     n = base.num_envs
+    policy = fast_policy(policy)
     alive = torch.ones(n, dtype=torch.bool)
-    rows = []
+    cols = {k: [] for k in (keys.STATE, keys.ODOMETRY, keys.GOAL, keys.ACTION, "alive", "controller_seconds")}
     with set_exploration_type(ExplorationType.DETERMINISTIC), one_torch_thread():
         for t in range(steps):
             if t in schedule and t > 0:
@@ -73,26 +74,29 @@ def run_flights(env: TransformedEnv, policy, starts: torch.Tensor, steps: int, g
                 td.set(keys.GOAL, base.goal)
             t0 = time.perf_counter()
             td = policy(td)
-            seconds = time.perf_counter() - t0
+            cols["controller_seconds"].append(time.perf_counter() - t0)
             td = env.step(td)
-            nxt = td["next"]
-            alive &= ~nxt.get(keys.TERMINATED).reshape(n)
-            rows.append(
-                TensorDict(
-                    {
-                        keys.STATE: nxt.get(keys.STATE).clone(),
-                        keys.ODOMETRY: nxt.get(keys.ODOMETRY).clone(),
-                        keys.GOAL: nxt.get(keys.GOAL).clone(),
-                        keys.ACTION: to_rad_s(td.get(keys.ACTION)).clone(),
-                        "alive": alive.clone(),
-                        "time": torch.full((n,), (t + 1) * base.dt),
-                        "controller_seconds": torch.full((n,), seconds),
-                    },
-                    batch_size=[n],
-                )
-            )
-            td = step_mdp(td)
-    return torch.stack(rows, 1)
+            nxt = td.get("next")
+            alive = alive & ~nxt.get(keys.TERMINATED).reshape(n)
+            # the env writes a new buffer each step, so the step's tensors are kept as they are
+            for key in (keys.STATE, keys.ODOMETRY, keys.GOAL):
+                cols[key].append(nxt.get(key))
+            cols[keys.ACTION].append(to_rad_s(td.get(keys.ACTION)).clone())  # a controller may reuse its buffer
+            cols["alive"].append(alive)
+            td = env._step_mdp(td)
+    out = {key: torch.stack(cols[key], 1) for key in (keys.ODOMETRY, keys.GOAL, keys.ACTION, "alive")}
+    out[keys.STATE] = torch.stack(cols[keys.STATE], 1)
+    out["time"] = torch.tensor([(t + 1) * base.dt for t in range(steps)]).expand(n, steps).clone()
+    out["controller_seconds"] = torch.tensor(cols["controller_seconds"]).expand(n, steps).clone()
+    return TensorDict(out, batch_size=[n, steps])
+
+
+def fast_policy(policy):
+    """bfc's own actor flown through `SamplingActor` (the same actions, without the
+    ProbabilisticActor's per-call overhead); any other controller as it is."""
+    from bfc.policy import SamplingActor, is_gaussian_actor
+
+    return SamplingActor(policy) if is_gaussian_actor(policy) else policy
 
 
 def config_for(env_settings: dict | None = None, **sections):

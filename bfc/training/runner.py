@@ -31,7 +31,7 @@ from bfc import keys
 from bfc.collectors import episode_stats, make_collector
 from bfc.evaluation.evaluator import ProtocolEvaluator
 from bfc.factory import find_transform, make_env
-from bfc.policy import atomic_save, save_policy
+from bfc.policy import SamplingActor, atomic_save, save_policy
 from bfc.training.ppo import make_learner, make_models
 from bfc.transforms import ControlledStartingState, JumpingDistribution, PolicyObservation
 
@@ -116,7 +116,7 @@ class Runner:
         self.evaluator = ProtocolEvaluator(cfg)
         fpb = int(cfg.collector.frames_per_batch)
         self.total = -(-int(cfg.collector.total_frames) // fpb) * fpb  # whole batches
-        self.collector = make_collector(self.env, self.actor, fpb, self.total)
+        self.collector = make_collector(self.env, SamplingActor(self.actor), fpb, self.total)
         self.frames, self.batches, self.wall = 0, 0, 0.0
         self.history: list[dict] = []
         self.best, self.best_error = -1.0, math.inf
@@ -185,7 +185,9 @@ class Runner:
         t0 = time.perf_counter()
         metrics = self.evaluator(self.actor)
         metrics["time/eval_seconds"] = time.perf_counter() - t0
-        self.history.append({"frames": self.frames, "wall_seconds": round(self.wall, 1), **metrics})
+        # unix_seconds: when the evaluation ended, so a benchmark can count from process start
+        entry = {"frames": self.frames, "wall_seconds": round(self.wall, 1), "unix_seconds": round(time.time(), 2)}
+        self.history.append({**entry, **metrics})
         self.log(metrics, self.frames)
         # Success saturates at 1.0 early, so ties are common: among them the more precise hover wins.
         better = (metrics["eval/success_rate"], -metrics["eval/position_error"]) >= (self.best, -self.best_error)
