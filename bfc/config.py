@@ -23,6 +23,7 @@ from bfc.envs import AirframeParams, RandomizeParams, RewardParams, StartParams,
 CONF_DIR = Path(__file__).resolve().parents[1] / "conf"  # the repository's Hydra configs
 
 ABLATIONS = ("ppo", "jd", "css", "tdts", "jd_css", "jd_tdts", "css_tdts", "jd_css_tdts")
+ALGORITHMS = ("ppo", "trpo", "ddpg")  # conf/algo/; bfc.training.ppo.make_learner builds each
 
 
 @dataclass
@@ -335,7 +336,7 @@ def validate(cfg) -> None:
         _check(d >= 0, "jd.decay_frames", "null (= collector.total_frames) or >= 0", d)
     _check(cfg.optim.lr > 0, "optim.lr", "> 0", cfg.optim.lr)
     a = cfg.algo
-    _check(a.name in ("ppo", "trpo", "ddpg"), "algo.name", "ppo, trpo or ddpg (conf/algo/)", a.name)
+    _check(a.name in ALGORITHMS, "algo.name", f"one of {', '.join(ALGORITHMS)} (conf/algo/)", a.name)
     _check(a.max_kl > 0, "algo.max_kl", "> 0", a.max_kl)
     _check(
         a.cg_iterations >= 1 and a.line_search_steps >= 1,

@@ -40,7 +40,7 @@ from torch import nn
 
 from bfc import keys
 from bfc.envs.params import AirframeParams
-from bfc.policy import POLICY_FORMAT, load_policy
+from bfc.policy import POLICY_FORMAT, load_policy, model_settings
 from bfc.transforms import MotorSpeedAction, PolicyObservation
 
 ONNX_FORMAT = "bfc-onnx-v1"
@@ -93,17 +93,12 @@ def policy_settings(payload: dict) -> dict:
     if "control_hz" not in env:
         raise ValueError("the policy file records no env.control_hz: it cannot say at which rate to fly")
     airframe = AirframeParams(**(env.get("airframe") or {}))
-    observation = payload["observation"]
     return {
         "control_hz": float(env["control_hz"]),
         "hover_speed": float(airframe.hover_speed),
         "max_rotor_speed": float(airframe.max_rotor_speed),
-        # files written before `action_map` existed used the speed map
-        "action_map": str(payload["model"].get("action_map", "speed")),
-        "include_acceleration": bool(observation["include_acceleration"]),
-        "position_integral": bool(observation.get("position_integral", False)),
-        "observation": str(observation.get("kind", "heading")),
-        "observation_size": int(observation["size"]),
+        **model_settings(payload),
+        "observation_size": int(payload["observation"]["size"]),
     }
 
 

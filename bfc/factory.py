@@ -198,6 +198,8 @@ class BFCEnv(TransformedEnv):
         request = TensorDict({keys.RESET: done.clone()}, batch_size=self.batch_size)
         request = self.transform._reset_env_preprocess(request)
         fresh = self.transform._reset(request, self.base_env._reset(request))
+        if bool(done.all()):  # TorchRL updates rather than merges: entries only in `tensordict` stay
+            return tensordict.update(fresh, update_batch_size=True)
         keep = ~done.reshape(self.batch_size)
         return tensordict.where(keep, other=fresh, out=tensordict, pad=0, update_batch_size=True)
 

@@ -97,9 +97,12 @@ class SamplingActor(TensorDictModuleBase):
 
     def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
         loc, scale = self.head(tensordict.get(keys.OBSERVATION))
-        if interaction_type() in (InteractionType.DETERMINISTIC, InteractionType.MEAN, InteractionType.MODE):
+        mode = interaction_type()
+        if mode in (InteractionType.DETERMINISTIC, InteractionType.MEAN, InteractionType.MODE):
             action = loc
-        else:  # torch.distributions.Normal.rsample: loc + eps * scale
+        elif mode is InteractionType.MEDIAN:  # as the actor: IndependentNormal has no median
+            raise NotImplementedError("the Gaussian actor has no median interaction type")
+        else:  # RANDOM or unset (the actor's default): torch.distributions.Normal.rsample
             action = loc + torch.empty_like(loc).normal_() * scale
         # torch.distributions.Normal.log_prob, summed over the 4 motors (Independent)
         log_prob = -((action - loc) ** 2) / (2 * scale**2) - scale.log() - math.log(math.sqrt(2 * math.pi))
@@ -149,6 +152,19 @@ def read_policy_file(path) -> dict:
     if not isinstance(payload, dict) or payload.get("format") != POLICY_FORMAT:
         raise ValueError(f"{path} is not a bfc policy file (expected format {POLICY_FORMAT!r})")
     return payload
+
+
+def model_settings(payload: dict) -> dict:
+    """The `model` config keys a policy file was trained with that decide how it is flown: its
+    action map and its observation (the one reader for `fly` and the ONNX export)."""
+    observation = payload["observation"]
+    return {
+        # files written before `action_map` existed used the speed map
+        "action_map": str(payload["model"].get("action_map", "speed")),
+        "include_acceleration": bool(observation["include_acceleration"]),
+        "position_integral": bool(observation.get("position_integral", False)),
+        "observation": str(observation.get("kind", "heading")),
+    }
 
 
 def load_policy(path) -> tuple[ProbabilisticActor, dict]:

@@ -7,6 +7,8 @@ from torchrl.collectors import Collector
 
 from bfc import keys
 
+_ACTOR_PREFIX = "module.0.module."  # a ProbabilisticActor's GaussianHead weights in its state dict
+
 
 class ResumableCollector(Collector):
     """TorchRL's synchronous Collector whose `state_dict()` is a whole snapshot of collection.
@@ -24,6 +26,12 @@ class ResumableCollector(Collector):
         return sd
 
     def load_state_dict(self, state_dict, **kwargs) -> None:
+        policy = state_dict.get("policy_state_dict")
+        if policy is not None and any(k.startswith(_ACTOR_PREFIX) for k in policy):
+            # a checkpoint whose collector held the ProbabilisticActor itself: the same weights
+            # under the actor's names (bfc.policy.SamplingActor keeps its GaussianHead as `head`)
+            policy = {k.replace(_ACTOR_PREFIX, "head.", 1): v for k, v in policy.items()}
+            state_dict = {**state_dict, "policy_state_dict": policy}
         super().load_state_dict(state_dict, **kwargs)
         carrier = self._carrier
         carrier.update(type(carrier).from_dict(state_dict["carrier"], batch_size=carrier.batch_size))

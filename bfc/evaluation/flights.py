@@ -156,7 +156,7 @@ def fly(
     Returns a TensorDict (n, T); see `run_flights`.
     """
     from bfc.controllers import CONTROLLERS
-    from bfc.policy import load_policy
+    from bfc.policy import load_policy, model_settings
 
     starts = torch.as_tensor(starts, dtype=torch.float32)
     if starts.ndim != 2 or starts.shape[1] != 12:
@@ -171,14 +171,7 @@ def fly(
         name = None
         controller, payload = load_policy(controller)
         settings, policy_io = payload["env"], True
-        # fly it with the observation and action maps it was trained with (files written before
-        # `action_map` existed used the speed map)
-        model = {
-            "action_map": payload["model"].get("action_map", "speed"),
-            "include_acceleration": payload["observation"]["include_acceleration"],
-            "position_integral": payload["observation"].get("position_integral", False),
-            "observation": payload["observation"].get("kind", "heading"),
-        }
+        model = model_settings(payload)  # flown with the observation and action maps it was trained with
     else:
         allowed = f"a policy.pt path, one of {sorted(CONTROLLERS)} or a TensorDictModule"
         raise ValueError(f"controller must be {allowed}, got {controller!r}")

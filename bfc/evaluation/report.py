@@ -3,8 +3,9 @@
 What it produces for one policy (seconds each, batched): the protocol table, accuracy over a 10 s
 hover (fig. 17), robustness to odometry noise added at evaluation time (fig. 18), a sparse and a
 dense waypoint course (fig. 22) and the flight figures (figs. 11-16). Given a directory of training
-runs (a `-m` sweep), it adds Table 2 (success per ablation variant, mean over seeds) and the
-learning curves (figs. 8-10) read from the runs' summaries.
+runs (a `-m` sweep), it adds Table 2 (each run's final policy flown on the test starts of the
+protocol, take-off and any-attitude sets: mean, spread and each seed, per ablation variant) and the
+learning curves with a band over seeds (figs. 8-10) read from the runs' summaries.
 """
 
 from __future__ import annotations
@@ -220,6 +221,8 @@ def _tb_scalars(run_dir: Path, tag: str) -> tuple[torch.Tensor, torch.Tensor]:
     """(frames, values) of one scalar tag from a run's TensorBoard events."""
     from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
+    if not (run_dir / "tb").is_dir():  # a run with logger.tensorboard=false
+        return torch.zeros(0), torch.zeros(0)
     acc = EventAccumulator(str(run_dir / "tb"), size_guidance={"scalars": 0})
     acc.Reload()
     if tag not in acc.Tags().get("scalars", []):
@@ -239,16 +242,21 @@ def _plot_band(ax, x: torch.Tensor, curves: list[torch.Tensor], label: str) -> N
         ax.fill_between(x[:k], stack.min(0).values, stack.max(0).values, alpha=0.15)
 
 
-def runs_sections(runs_dir: Path, out: Path) -> list[str]:
-    """Table 2 and the learning curves (figs. 8-10) of every run (`summary.json`) below `runs_dir`:
-    the evaluations from the summaries, the episode returns from the TensorBoard events."""
+PAPER_ORDER = ("ppo", "jd", "css", "tdts", "jd_css", "jd_tdts", "css_tdts", "jd_css_tdts")
+TABLE2_STARTS = {"protocol": "protocol", "ground": "take-off (ground)", "any": "any attitude"}
+
+
+def read_runs(runs_dir: Path) -> dict[str, list[dict]]:
+    """{row label: [run, ...]} for every run (`summary.json` + `config.yaml`) below `runs_dir`;
+    PPO rows keep the variant's name, other algorithms are prefixed with theirs; paper order."""
     import yaml
 
     by_variant: dict[str, list[dict]] = {}
     for summary_path in sorted(runs_dir.rglob("summary.json")):
         cfg = yaml.safe_load((summary_path.parent / "config.yaml").read_text())
-        algo = (cfg.get("algo") or {}).get("name", "ppo")  # ppo rows keep the variant's own name
-        label = cfg.get("variant", "?") if algo == "ppo" else f"{algo} {cfg.get('variant', '?')}"
+        algo = (cfg.get("algo") or {}).get("name", "ppo")
+        variant = cfg.get("variant") or "?"
+        label = variant if algo == "ppo" else f"{algo} {variant}"
         by_variant.setdefault(label, []).append(
             {
                 "dir": summary_path.parent,
@@ -257,25 +265,91 @@ def runs_sections(runs_dir: Path, out: Path) -> list[str]:
                 **json.loads(summary_path.read_text()),
             }
         )
+
+    def order(label: str):
+        algo, _, variant = label.rpartition(" ")
+        return (algo, PAPER_ORDER.index(variant) if variant in PAPER_ORDER else len(PAPER_ORDER), variant)
+
+    return {label: sorted(by_variant[label], key=lambda r: r["seed"]) for label in sorted(by_variant, key=order)}
+
+
+def fly_final_policies(by_variant: dict, protocol: ProtocolConfig) -> None:
+    """Each run's `policy_last.pt` (the final policy: never chosen on any starts) on the test
+    starts of every set in TABLE2_STARTS: run["test"] = {set: success rate}."""
+    from bfc.evaluation.suites import START_SETS, score
+
+    p = protocol
+    for runs in by_variant.values():
+        for run in runs:
+            policy = run["dir"] / "policy_last.pt"
+            run["test"] = {}
+            for name in TABLE2_STARTS if policy.is_file() else ():
+                flights = fly(policy, START_SETS[name](p.num_starts, p.seed), seconds=p.seconds, seed=p.seed)
+                run["test"][name] = score(flights, p.threshold, p.hold_seconds)["success_rate"]
+
+
+def mean_spread(rates: list) -> str:
+    """Percent: mean +- sample standard deviation over seeds, then each seed's value (None: a run
+    without that figure, shown as n/a and left out of the mean)."""
+    known = [r for r in rates if r is not None]
+    if not known:
+        return "n/a"
+    pct = torch.tensor(known, dtype=torch.float64) * 100
+    sd = pct.std().item() if len(known) > 1 else 0.0
+    each = ", ".join("n/a" if r is None else f"{100 * r:.0f}" for r in rates)
+    return f"{pct.mean().item():.1f} +- {sd:.1f} ({each})"
+
+
+def _first_reached(run: dict) -> str:
+    reach = run.get("first_reached_0.905")
+    return "never" if reach is None else f"{reach['frames'] / 1e6:g}M"
+
+
+def table2(by_variant: dict, protocol: ProtocolConfig) -> list[str]:
+    """Table 2: the final policies on the test starts (mean, spread and seeds), the validation
+    evaluations the runs made, and when each seed first reached the paper's 0.905."""
+    sets = [TABLE2_STARTS[name] for name in TABLE2_STARTS]
+    lines = [
+        "| variant | seeds | frames each | "
+        + " | ".join(f"{s}, final policy" for s in sets)
+        + " | validation, last evaluation | validation, best evaluation | 0.905 first reached (validation) |",
+        "|---|---|---|" + "---|" * (len(sets) + 3),
+    ]
+    for variant, runs in by_variant.items():
+        test = [mean_spread([r.get("test", {}).get(name) for r in runs]) for name in TABLE2_STARTS]
+        final = mean_spread([r["final_success_rate"] for r in runs])
+        best = mean_spread([r["best_success_rate"] if r["history"] else None for r in runs])
+        reached = ", ".join(_first_reached(r) for r in runs)
+        cells = [variant, str(len(runs)), f"{runs[0]['frames']:,}", *test, final, best, reached]
+        lines.append("| " + " | ".join(cells) + " |")
+    p = protocol
+    lines += [
+        "",
+        f"Success in percent: mean +- sample standard deviation over seeds (each seed's value in brackets, seed "
+        "order; n/a: a run without a `policy_last.pt` or without evaluations). "
+        f"The final policy (`policy_last.pt`) of each run flies {p.num_starts} test starts (seed {p.seed}) of each set "
+        f"for {p.seconds:g} s; the validation columns are the runs' own in-training evaluations (`eval.seed` starts).",
+    ]
+    return lines
+
+
+def runs_sections(runs_dir: Path, out: Path, protocol: ProtocolConfig | None = None) -> list[str]:
+    """Table 2 and the learning curves (figs. 8-10) of every run (`summary.json`) below `runs_dir`:
+    the final policies flown on the test starts, the evaluations from the summaries, the episode
+    returns from the TensorBoard events. Per-run figures go to `out`/table2.json."""
+    protocol = protocol or ProtocolConfig()
+    by_variant = read_runs(runs_dir)
     if not by_variant:
         return ["## Ablation (Table 2)", f"No training runs (summary.json) under {runs_dir}.", ""]
+    fly_final_policies(by_variant, protocol)
+    per_run = {
+        v: [{k: (str(x) if k == "dir" else x) for k, x in r.items() if k != "history"} for r in runs]
+        for v, runs in by_variant.items()
+    }
+    (out / "table2.json").write_text(json.dumps(per_run, indent=1))
+    lines = ["## Ablation (Table 2)", f"Runs under `{runs_dir}`.", "", *table2(by_variant, protocol)]
     fig, axes = subplots(2, 3, figsize=(15, 7.6))
-    lines = [
-        "## Ablation (Table 2)",
-        f"Runs under `{runs_dir}`; success at the last in-training evaluation (the protocol on the runs' "
-        "`eval.seed` starts: the validation starts, seed 1, by default), mean over seeds.",
-        "",
-        "| variant | seeds | frames each | success (final) | fail | best during training |",
-        "|---|---|---|---|---|---|",
-    ]
-    for variant, runs in sorted(by_variant.items()):
-        final = [100 * (r["final_success_rate"] or 0.0) for r in runs]
-        best = [100 * r["best_success_rate"] for r in runs]
-        mean = sum(final) / len(final)
-        best_mean = sum(best) / len(best)
-        lines.append(
-            f"| {variant} | {len(runs)} | {runs[0]['frames']:,} | {mean:.1f} | {100 - mean:.1f} | {best_mean:.1f} |"
-        )
+    for variant, runs in by_variant.items():
         frames = torch.tensor([h["frames"] for h in runs[0]["history"]], dtype=torch.float64) / 1e6
         minutes = torch.tensor([h["wall_seconds"] for h in runs[0]["history"]], dtype=torch.float64) / 60
         history = {
@@ -302,7 +376,8 @@ def runs_sections(runs_dir: Path, out: Path) -> list[str]:
         ax.set_xlabel(xlabel)
         ax.set_ylabel(ylabel)
         ax.grid(alpha=0.3)
-    axes[1, 0].set_yscale("log")
+    if any(line.get_ydata().size and (line.get_ydata() > 0).any() for line in axes[1, 0].get_lines()):
+        axes[1, 0].set_yscale("log")
     axes[0, 0].legend(fontsize=7)
     fig.tight_layout()
     fig.savefig(out / "learning_curves.png", dpi=110)
@@ -340,7 +415,7 @@ def write_report(
         if others:
             lines += controller_sections({label: controller, **others}, out, protocol, {label: flights})
     if runs_dir is not None:
-        lines += runs_sections(Path(runs_dir), out)
+        lines += runs_sections(Path(runs_dir), out, protocol)
     path = out / "report.md"
     path.write_text("\n".join(lines) + "\n")
     return path

@@ -9,7 +9,7 @@ from torchrl.objectives import ClipPPOLoss, KLPENPPOLoss
 from torchrl.objectives.value import GAE
 
 from bfc import keys
-from bfc.config import minibatch_size
+from bfc.config import ALGORITHMS, minibatch_size
 from bfc.policy import make_actor, make_critic
 
 # What the loss reads; selecting these first makes every minibatch gather cheaper.
@@ -104,9 +104,6 @@ def make_learner(cfg, actor, critic):
 
         return DDPG(cfg, actor, critic)
     raise ValueError(f"algo.name must be one of {', '.join(ALGORITHMS)}, got {name!r}")
-
-
-ALGORITHMS = ("ppo", "trpo", "ddpg")
 
 
 def ppo_update(data: TensorDictBase, loss_module, advantage, optimizer, cfg) -> dict[str, float]:

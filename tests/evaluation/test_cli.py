@@ -76,17 +76,73 @@ def test_paper_suite_writes_a_report_with_figures(tmp_path):
 
 
 def test_suite_reads_table_2_from_training_runs(tmp_path):
+    from bfc.config import ProtocolConfig
     from bfc.evaluation.report import runs_sections
     from bfc.training import train
 
     from ..training.helpers import TINY, compose_cfg
 
-    for variant in ("jd", "jd_tdts"):
+    for variant in ("jd_tdts", "jd"):
         train(compose_cfg([f"+ablation={variant}", *TINY, "env.episode_seconds=0.2"]), tmp_path / "runs" / variant)
-    lines = runs_sections(tmp_path / "runs", tmp_path)
+    lines = runs_sections(tmp_path / "runs", tmp_path, ProtocolConfig(num_starts=4, seconds=1.0))
     rows = [line for line in lines if line.startswith("| jd")]
-    assert [row.split("|")[1].strip() for row in rows] == ["jd", "jd_tdts"]
+    assert [row.split("|")[1].strip() for row in rows] == ["jd", "jd_tdts"]  # the paper's order
     assert (tmp_path / "learning_curves.png").stat().st_size > 10_000
+
+
+def _fake_run(run_dir, variant: str, seed: int, policy, final: float, reached_at):
+    import shutil
+
+    import yaml
+
+    run_dir.mkdir(parents=True)
+    cfg = {"variant": variant, "seed": seed, "algo": {"name": "ppo"}, "collector": {"total_frames": 2_000_000}}
+    (run_dir / "config.yaml").write_text(yaml.safe_dump(cfg))
+    history = [{"frames": f, "wall_seconds": f / 1e4, "eval/success_rate": final} for f in (0, 1_000_000, 2_000_000)]
+    reach = None if reached_at is None else {"frames": reached_at, "wall_seconds": 1.0}
+    summary = {"final_success_rate": final, "best_success_rate": max(final, 0.5), "history": history}
+    (run_dir / "summary.json").write_text(json.dumps({**summary, "first_reached_0.905": reach}))
+    shutil.copy(policy, run_dir / "policy_last.pt")
+
+
+def test_table_2_gives_the_mean_and_spread_of_the_final_policies_on_the_test_starts(tmp_path):
+    from bfc.config import ProtocolConfig
+    from bfc.evaluation.report import runs_sections
+    from bfc.evaluation.suites import START_SETS, score
+    from bfc.policy import make_actor, read_policy_file, save_policy
+
+    shipped = read_policy_file(SHIPPED)
+    falling = tmp_path / "falling.pt"  # a policy that commands the motors off: never succeeds
+    actor = make_actor(shipped["observation"]["size"], shipped["model"]["actor_hidden"])
+    with torch.no_grad():
+        actor.module[0].module.mean[-1].bias.fill_(-1.0)
+    save_policy(falling, actor, **{k: shipped[k] for k in ("model", "env", "observation", "info")})
+    runs = tmp_path / "runs"
+    _fake_run(runs / "a", "jd_css_tdts", 0, SHIPPED, 1.0, 1_000_000)
+    _fake_run(runs / "b", "jd_css_tdts", 1, falling, 0.5, None)
+    _fake_run(runs / "c", "ppo", 0, falling, 0.0, None)
+    protocol = ProtocolConfig(num_starts=8, seconds=3.0)
+    lines = runs_sections(runs, tmp_path, protocol)
+    rows = {
+        line.split("|")[1].strip(): [c.strip() for c in line.split("|")[2:-1]]
+        for line in lines
+        if "| 2,000,000 |" in line
+    }
+    assert list(rows) == ["ppo", "jd_css_tdts"]  # the paper's order
+    expected = {}
+    for name in ("protocol", "ground", "any"):
+        flights = fly(SHIPPED, START_SETS[name](8, protocol.seed), seconds=3.0, seed=protocol.seed)
+        expected[name] = 100 * score(flights)["success_rate"]
+    assert expected["protocol"] > 0
+    for k, name in enumerate(("protocol", "ground", "any")):
+        sd = torch.tensor([expected[name], 0.0], dtype=torch.float64).std().item()  # sample std over the seeds
+        mean = expected[name] / 2  # seeds: the shipped policy and a falling one
+        assert rows["jd_css_tdts"][2 + k] == f"{mean:.1f} +- {sd:.1f} ({expected[name]:.0f}, 0)"
+        assert rows["ppo"][2 + k] == "0.0 +- 0.0 (0)"
+    assert rows["jd_css_tdts"][5] == "75.0 +- 35.4 (100, 50)"  # the validation columns: from the summaries
+    assert rows["jd_css_tdts"][7] == "1M, never"
+    saved = json.loads((tmp_path / "table2.json").read_text())
+    assert saved["jd_css_tdts"][1]["test"]["protocol"] == 0.0
 
 
 def test_the_protocol_keys_moved_under_eval(tmp_path):

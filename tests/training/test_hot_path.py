@@ -72,3 +72,17 @@ def test_sampling_actor_shares_the_actors_weights(cfg):
     with set_exploration_type(ExplorationType.DETERMINISTIC), torch.no_grad():
         assert torch.equal(fast(td.clone()).get(keys.ACTION), actor(td.clone()).get(keys.ACTION))
     env.close()
+
+
+def test_a_collector_checkpoint_that_held_the_actor_itself_still_loads(cfg):
+    from bfc.collectors import make_collector
+
+    env = make_env(cfg, num_envs=4, seed=0)
+    actor = make_actor(find_transform(env, PolicyObservation).size, [16, 16])
+    collector = make_collector(env, SamplingActor(actor), frames_per_batch=8, total_frames=8)
+    state = collector.state_dict()
+    old = {k.replace("head.", "module.0.module.", 1): v.clone() + 1 for k, v in state["policy_state_dict"].items()}
+    collector.load_state_dict({**state, "policy_state_dict": old})  # the names before SamplingActor
+    assert torch.equal(actor.module[0].module.log_std, old["module.0.module.log_std"])
+    collector.shutdown()
+    env.close()
