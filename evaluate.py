@@ -118,7 +118,8 @@ def run_suite(cfg, out: Path) -> None:
 
     controller = cfg.controller or cfg.policy
     t0 = time.perf_counter()
-    header = f"Controller: `{controller}`; runs: `{cfg.runs}`. Command: `python evaluate.py {' '.join(sys.argv[1:])}`."
+    flown = [f"Controller: `{controller}`" if controller else None, f"runs: `{cfg.runs}`" if cfg.runs else None]
+    header = "; ".join(f for f in flown if f) + f". Command: `python evaluate.py {' '.join(sys.argv[1:])}`."
     path = write_report(out, controller, cfg.runs, protocol=cfg.eval, header=header, baselines=list(cfg.baselines))
     print(f"report written to {path} in {time.perf_counter() - t0:.0f} s")
 

@@ -1,7 +1,8 @@
 """Collection frames per second of the training pipeline against raw MuJoCo at the same control
 rate and env count, and what each hot-path lever is worth.
 
-    python bench/collection_throughput.py [--batches 4] [--rounds 3] [-- train.py overrides]
+    python bench/collection_throughput.py [--batches 4] [--rounds 3] [--policy p.pt] [-- train.py overrides]
+    python bench/collection_throughput.py --breakdown [--policy p.pt]   # where a collection step's time goes
 
 Each row collects `--batches` batches with TorchRL's Collector over the config's env (the full
 transform stack: TDTS, JD, CSS, observation, action map, episode statistics) and an untrained
@@ -60,11 +61,55 @@ def collection_rate(runner: Runner, start: dict, batches: int, fused_reset: bool
         runner.env.fused_reset = True
 
 
+def breakdown(runner: Runner, start: dict, batches: int) -> None:
+    """Time per collection step of each piece (MuJoCo, the env's own step and reset, every
+    transform's step, reset and pre-reset, the policy), by wrapping each in a timer; what is
+    left is TorchRL's and the Collector's bookkeeping."""
+    times: dict[str, float] = {}
+
+    def timed(obj, name: str, label: str) -> None:
+        inner = getattr(obj, name)
+
+        def wrapper(*args, **kwargs):
+            t = time.perf_counter()
+            try:
+                return inner(*args, **kwargs)
+            finally:
+                times[label] = times.get(label, 0.0) + time.perf_counter() - t
+
+        setattr(obj, name, wrapper)
+
+    base, collector = runner.env.base_env, runner.collector
+    timed(base, "_integrate", "MuJoCo (mujoco.rollout)")
+    timed(base, "_step", "env step (MuJoCo included)")
+    timed(base, "_reset", "env reset")
+    for t in runner.env.transform:
+        name = type(t).__name__
+        timed(t, "_step", f"{name} step")
+        timed(t, "_reset", f"{name} reset")
+        timed(t, "_reset_env_preprocess", f"{name} pre-reset")
+    timed(collector.policy, "forward", "policy")
+    collector.load_state_dict(start)
+    it = iter(collector)
+    t0 = time.perf_counter()
+    steps = sum(next(it).shape[-1] for _ in range(batches))
+    total = time.perf_counter() - t0
+    own = sum(v for k, v in times.items() if k != "MuJoCo (mujoco.rollout)")
+    print(f"| piece | ms per {base.num_envs}-env step |")
+    print("|---|---|")
+    for label, seconds in sorted(times.items(), key=lambda kv: -kv[1]):
+        if seconds / steps * 1e3 >= 0.01:
+            print(f"| {label} | {seconds / steps * 1e3:.2f} |")
+    print(f"| TorchRL and Collector bookkeeping (the rest) | {(total - own) / steps * 1e3:.2f} |")
+    print(f"| **total** | **{total / steps * 1e3:.2f}** |")
+
+
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--batches", type=int, default=4)
     p.add_argument("--rounds", type=int, default=3)
     p.add_argument("--policy", default=None, help="fly this policy.pt's weights (the config's observation)")
+    p.add_argument("--breakdown", action="store_true", help="time each piece of a collection step instead")
     p.add_argument("overrides", nargs="*", help="train.py overrides, e.g. env.control_hz=250")
     args = p.parse_args()
     torch.set_num_threads(1)
@@ -75,6 +120,9 @@ def main() -> None:
     base = runner.env.base_env
     next(iter(runner.collector))  # warm-up
     start = runner.collector.state_dict()
+    if args.breakdown:
+        breakdown(runner, start, args.batches)
+        return runner.close()
     rates: dict[str, list[float]] = {"raw MuJoCo": [], **{name: [] for name in VARIANTS}}
     for _ in range(args.rounds):
         rates["raw MuJoCo"].append(hover_rate(base, 300))

@@ -302,7 +302,7 @@ def mean_spread(rates: list) -> str:
 
 def _first_reached(run: dict) -> str:
     reach = run.get("first_reached_0.905")
-    return "never" if reach is None else f"{reach['frames'] / 1e6:g}M"
+    return "never" if reach is None else f"{reach['frames'] / 1e6:.1f}M"
 
 
 def table2(by_variant: dict, protocol: ProtocolConfig) -> list[str]:

@@ -33,9 +33,10 @@ from bfc.transforms._base import BatchedTransform, check, reset_mask
 OBSERVATIONS = ("heading", "odometry")
 
 
-def to_heading_frame(v: torch.Tensor, yaw: torch.Tensor) -> torch.Tensor:
-    """World vectors (..., 3) in the frame turned by `yaw` about z."""
-    c, s = yaw.cos(), yaw.sin()
+def to_heading_frame(v: torch.Tensor, yaw: torch.Tensor, cos_sin=None) -> torch.Tensor:
+    """World vectors (..., 3) in the frame turned by `yaw` about z (`cos_sin`: the yaw's cosine
+    and sine, when the caller turns several vectors by the same yaw)."""
+    c, s = cos_sin if cos_sin is not None else (yaw.cos(), yaw.sin())
     x, y = v[..., 0], v[..., 1]
     return torch.stack((c * x + s * y, -s * x + c * y, v[..., 2]), -1)
 
@@ -94,31 +95,32 @@ class PolicyObservation(BatchedTransform):
         integral: torch.Tensor | None = None,
     ) -> torch.Tensor:
         yaw = odometry[..., 11]
+        cos_sin = yaw.cos(), yaw.sin()  # once for every vector turned into the heading frame
         if self.kind == "odometry":
             parts = [odometry[..., 0:3] - goal, odometry[..., 3:18]]
             if self.position_integral:
-                parts.append(self._integral_input(integral, yaw))
+                parts.append(self._integral_input(integral, yaw, cos_sin))
             return torch.cat(parts, -1)
         level = torch.cat((odometry[..., 9:11], torch.zeros_like(yaw).unsqueeze(-1)), -1)
         rot = quat_to_matrix(euler_to_quat(level)).flatten(-2)  # roll and pitch only
-        rel = to_heading_frame(odometry[..., 0:3] - goal, yaw).clamp(-self.position_clip, self.position_clip)
+        rel = to_heading_frame(odometry[..., 0:3] - goal, yaw, cos_sin).clamp(-self.position_clip, self.position_clip)
         parts = [
             rel,
             rot,
-            to_heading_frame(odometry[..., 3:6], yaw) * self.velocity_scale,
+            to_heading_frame(odometry[..., 3:6], yaw, cos_sin) * self.velocity_scale,
             odometry[..., 12:15] * self.angular_velocity_scale,
             last_action,
         ]
         if self.include_acceleration:
             parts += [odometry[..., 6:9] * self.acceleration_scale, odometry[..., 15:18] * self.acceleration_scale]
         if self.position_integral:
-            parts.append(self._integral_input(integral, yaw))
+            parts.append(self._integral_input(integral, yaw, cos_sin))
         return torch.cat(parts, -1)
 
-    def _integral_input(self, integral: torch.Tensor | None, yaw: torch.Tensor) -> torch.Tensor:
+    def _integral_input(self, integral: torch.Tensor | None, yaw: torch.Tensor, cos_sin=None) -> torch.Tensor:
         if integral is None:
             raise ValueError("this observation has a position_integral: pass the integral (N, 3)")
-        return to_heading_frame(integral, yaw) * self.integral_scale
+        return to_heading_frame(integral, yaw, cos_sin) * self.integral_scale
 
     def _call(self, td: TensorDictBase) -> TensorDictBase:
         integral = self.integral.clone() if self.position_integral else None  # no copy per step when off

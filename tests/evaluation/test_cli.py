@@ -140,7 +140,7 @@ def test_table_2_gives_the_mean_and_spread_of_the_final_policies_on_the_test_sta
         assert rows["jd_css_tdts"][2 + k] == f"{mean:.1f} +- {sd:.1f} ({expected[name]:.0f}, 0)"
         assert rows["ppo"][2 + k] == "0.0 +- 0.0 (0)"
     assert rows["jd_css_tdts"][5] == "75.0 +- 35.4 (100, 50)"  # the validation columns: from the summaries
-    assert rows["jd_css_tdts"][7] == "1M, never"
+    assert rows["jd_css_tdts"][7] == "1.0M, never"
     saved = json.loads((tmp_path / "table2.json").read_text())
     assert saved["jd_css_tdts"][1]["test"]["protocol"] == 0.0
 

@@ -1,0 +1,61 @@
+"""Wall-clock of one in-training evaluation: the protocol's 100 starts flown for 10 s by a policy
+file, as `train.py` evaluates every `eval.interval_frames` (ProtocolEvaluator: one batched env,
+the deterministic policy, the judge).
+
+    python bench/eval_time.py [--policy pretrained/policy.pt] [--rounds 5]
+
+Prints the median over rounds (shared cloud cores change speed from one second to the next) and
+raw MuJoCo's time for the same physics (100 bodies, the policy's control rate, 10 s, in-air hover):
+the floor under any evaluation of this length.
+"""
+
+from __future__ import annotations
+
+import argparse
+import platform
+import statistics
+import time
+
+import mujoco
+import torch
+from env_throughput import hover_rate  # bench/ is the script's directory
+
+from bfc.config import compose
+from bfc.evaluation.evaluator import ProtocolEvaluator
+from bfc.factory import make_base_env
+from bfc.policy import load_policy
+
+
+def main() -> None:
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--policy", default="pretrained/policy.pt")
+    p.add_argument("--rounds", type=int, default=5)
+    args = p.parse_args()
+    torch.set_num_threads(1)
+    actor, payload = load_policy(args.policy)
+    hz = payload["env"]["control_hz"]
+    cfg = compose([f"env.control_hz={hz}", "eval.seed=0"])  # the test starts
+    evaluator = ProtocolEvaluator(cfg)
+    evaluator(actor)  # warm-up
+    times, success = [], None
+    for _ in range(args.rounds):
+        t = time.perf_counter()
+        success = evaluator(actor)["eval/success_rate"]
+        times.append(time.perf_counter() - t)
+    evaluator.close()
+    env = make_base_env(cfg, num_envs=cfg.eval.num_starts, randomize=False)
+    steps = round(cfg.eval.seconds * hz)
+    raw = min(env.num_envs * steps / hover_rate(env, steps) for _ in range(3))  # seconds, best of 3
+    env.close()
+    print(
+        f"# {platform.processor() or platform.machine()}, mujoco {mujoco.__version__}, torch {torch.__version__}; "
+        f"{args.policy} at {hz:g} Hz, {cfg.eval.num_starts} starts, {cfg.eval.seconds:g} s"
+    )
+    print(
+        f"evaluation: median {statistics.median(times):.2f} s (min {min(times):.2f}, max {max(times):.2f}, "
+        f"{args.rounds} rounds; success {success:.2f}); raw MuJoCo for the same physics: {raw:.2f} s"
+    )
+
+
+if __name__ == "__main__":
+    main()
