@@ -1,6 +1,10 @@
 """Env steps per second of QuadrotorEnv against raw MuJoCo stepping of the same model.
 
     python bench/env_throughput.py [--envs 64 256 1024] [--steps 300] [--threads 2] [--rounds 5]
+                                   [--control-hz 100] [--physics-dt 0.01]
+
+`--physics-dt` is MuJoCo's step (default: the reference 0.002 s that evaluations fly; training
+takes one step per control step, 0.01 s at 100 Hz).
 
 The env gets random motor commands within +/-20% of hover speed, starting level in the air at
 1-2 m, and auto-resets through `step_and_maybe_reset`, as a collector drives it: drones that
@@ -59,7 +63,7 @@ def rollout_rate(env: QuadrotorEnv, calls, carry_state: bool) -> float:
 def hover_rate(env: QuadrotorEnv, steps: int) -> float:
     env.reset(env.reset().set("start_state", air_starts(env)))
     ctrl = np.zeros((env.num_envs, env.substeps, env.model.nu))
-    ctrl[:, :, :4] = env.airframe.motor_constant * env.hover_speed**2
+    ctrl[:, :, 2] = 4 * env.airframe.motor_constant * env.hover_speed**2  # the body force: weight
     state = env._physics_np.copy()
     return rollout_rate(env, [(state, ctrl)] * steps, carry_state=True)
 
@@ -95,12 +99,14 @@ def main() -> None:
     parser.add_argument("--steps", type=int, default=300)
     parser.add_argument("--threads", type=int, default=None)
     parser.add_argument("--control-hz", type=float, default=250.0)
+    parser.add_argument("--physics-dt", type=float, default=0.002)
     parser.add_argument("--rounds", type=int, default=5, help="alternating measurements per size")
     args = parser.parse_args()
     torch.set_num_threads(1)
     print(
         f"# {platform.processor() or platform.machine()}, {torch.get_num_threads()} torch thread(s), "
-        f"mujoco {mujoco.__version__}, torch {torch.__version__}, control {args.control_hz:g} Hz; "
+        f"mujoco {mujoco.__version__}, torch {torch.__version__}, control {args.control_hz:g} Hz, "
+        f"physics step {args.physics_dt:g} s; "
         f"medians of {args.rounds} alternating rounds of {args.steps} control steps"
     )
     print(
@@ -109,7 +115,7 @@ def main() -> None:
     )
     print("|---|---|---|---|---|---|---|")
     for n in args.envs:
-        env = QuadrotorEnv(n, control_hz=args.control_hz, num_threads=args.threads, seed=0)
+        env = QuadrotorEnv(n, control_hz=args.control_hz, physics_dt=args.physics_dt, num_threads=args.threads, seed=0)
         calls: list = []
         env_rate(env, args.steps, record=calls)  # the same trajectory as every timed run (same seeds)
         rounds = [

@@ -19,6 +19,7 @@ import time
 import mujoco
 import torch
 from env_throughput import hover_rate  # bench/ is the script's directory
+from omegaconf import OmegaConf
 
 from bfc.config import compose
 from bfc.evaluation.evaluator import ProtocolEvaluator
@@ -34,7 +35,17 @@ def main() -> None:
     torch.set_num_threads(1)
     actor, payload = load_policy(args.policy)
     hz = payload["env"]["control_hz"]
-    cfg = compose([f"env.control_hz={hz}", "eval.seed=0"])  # the test starts
+    model = payload["observation"]
+    cfg = compose(
+        [
+            f"env.control_hz={hz}",
+            "eval.seed=0",  # the test starts
+            f"model.position_integral={model.get('position_integral', False)}",
+            f"model.include_acceleration={model['include_acceleration']}",
+            f"model.observation={model.get('kind', 'heading')}",
+            f"model.action_map={payload['model'].get('action_map', 'speed')}",
+        ]
+    )
     evaluator = ProtocolEvaluator(cfg)
     evaluator(actor)  # warm-up
     times, success = [], None
@@ -43,7 +54,8 @@ def main() -> None:
         success = evaluator(actor)["eval/success_rate"]
         times.append(time.perf_counter() - t)
     evaluator.close()
-    env = make_base_env(cfg, num_envs=cfg.eval.num_starts, randomize=False)
+    flown = OmegaConf.merge(cfg, {"env": {"physics_dt": cfg.eval.physics_dt}})  # the simulator evaluations fly
+    env = make_base_env(flown, num_envs=cfg.eval.num_starts, randomize=False)
     steps = round(cfg.eval.seconds * hz)
     raw = min(env.num_envs * steps / hover_rate(env, steps) for _ in range(3))  # seconds, best of 3
     env.close()

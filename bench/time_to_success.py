@@ -9,7 +9,8 @@ outputs/bench/. Two clocks: "training" counts collection and update only (summar
 wall_seconds); "from launch" counts from the moment `python train.py` is started until the
 in-training evaluation that first reached the level ended (imports, set-up and every evaluation
 included: the time a user waits). The machine's raw MuJoCo speed (256 envs, in-air hover, at the
-run's control rate) is printed first, so other machines can scale the figures.
+run's control rate, at the training step and at the reference 0.002 s that evaluations fly) is
+printed first, so other machines can scale the figures.
 """
 
 from __future__ import annotations
@@ -28,7 +29,7 @@ ROOT = Path(__file__).resolve().parents[1]
 def fmt(reach) -> str:
     if reach is None:
         return "not reached"
-    return f"{reach['wall_seconds'] / 60:.1f} min ({reach['frames'] / 1e6:.0f}M)"
+    return f"{reach['wall_seconds']:.0f} s ({reach['frames'] / 1e6:.2f}M)"
 
 
 def from_launch(history: list, level: float, launched: float) -> str:
@@ -39,8 +40,9 @@ def from_launch(history: list, level: float, launched: float) -> str:
     return "not reached"
 
 
-def raw_mujoco_rate(overrides: list[str]) -> float:
-    """Raw MuJoCo steps/s at 256 envs for the config's control rate (bench/env_throughput.py)."""
+def raw_mujoco_rate(overrides: list[str], physics_dt: float | None = None) -> float:
+    """Raw MuJoCo steps/s at 256 envs for the config's control rate (bench/env_throughput.py), at
+    the training step (physics_dt None) or the given one."""
     import torch
     from env_throughput import hover_rate  # bench/ is the script's directory
 
@@ -48,7 +50,8 @@ def raw_mujoco_rate(overrides: list[str]) -> float:
     from bfc.factory import make_base_env
 
     torch.set_num_threads(1)
-    env = make_base_env(compose(overrides), num_envs=256, randomize=False)
+    cfg = compose([*overrides, *([f"env.physics_dt={physics_dt}"] if physics_dt else [])])
+    env = make_base_env(cfg, num_envs=256, randomize=False)
     rate = max(hover_rate(env, 200) for _ in range(3))
     env.close()
     return rate
@@ -62,7 +65,8 @@ def main() -> None:
     args = p.parse_args()
     print(
         f"# {platform.machine()}, {platform.python_version()}; overrides: {' '.join(args.overrides) or '(defaults)'}; "
-        f"raw MuJoCo {raw_mujoco_rate(args.overrides):,.0f} steps/s (256 envs, in-air hover, best of 3)"
+        f"raw MuJoCo (256 envs, in-air hover, best of 3) {raw_mujoco_rate(args.overrides):,.0f} steps/s at the "
+        f"training step, {raw_mujoco_rate(args.overrides, 0.002):,.0f} at the reference 0.002 s"
     )
     print(
         "| seed | 0.905 reached after (training) | from launch | 0.99 reached after (training) | from launch "

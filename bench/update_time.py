@@ -1,55 +1,64 @@
-"""Time of one PPO update (GAE + epochs x minibatches) on a synthetic batch, per network size and
-torch thread count.
+"""Time of one PPO update (GAE + epochs x minibatches) on a batch collected by the default
+config's env, per network size, activation, torch thread count and loss path.
 
-    python bench/update_time.py [--threads 1 2] [--sizes 64,128 256,256] [--activations tanh relu]
+    python bench/update_time.py [--threads 1 2] [--sizes 64,64 64,128] [--activations tanh relu]
+
+"fused" is what training runs (`bfc.training.ppo.FusedClipLoss`: ClipPPOLoss's values in plain
+torch); "ClipPPOLoss" calls TorchRL's module on TensorDict minibatches, as before it. The rows
+are measured in alternating rounds and the medians printed (shared cores change speed).
 """
 
 from __future__ import annotations
 
 import argparse
+import statistics
 import time
 
 import torch
-from omegaconf import OmegaConf
 
-from bfc.config import Config, minibatch_size
+from bfc.config import compose, minibatch_size
 from bfc.factory import find_transform, make_env
-from bfc.training.ppo import make_loss, make_models, ppo_update
+from bfc.training.ppo import PPO, make_models, ppo_update
 from bfc.transforms import PolicyObservation
 
 
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--threads", type=int, nargs="+", default=[1, 2])
-    p.add_argument("--sizes", nargs="+", default=["64,128", "128,128", "256,256"], help="actor width,critic width")
-    p.add_argument("--repeats", type=int, default=3)
-    p.add_argument("--activations", nargs="+", default=["tanh", "relu"])
+    p.add_argument("--sizes", nargs="+", default=["64,64", "64,128"], help="actor width,critic width")
+    p.add_argument("--activations", nargs="+", default=["tanh"])
+    p.add_argument("--rounds", type=int, default=5)
+    p.add_argument("overrides", nargs="*", help="train.py overrides, e.g. loss.num_minibatches=8")
     args = p.parse_args()
-    cfg = OmegaConf.structured(Config)
+    cfg = compose(list(args.overrides))
     env = make_env(cfg, seed=0)
     obs = find_transform(env, PolicyObservation)
     steps = cfg.collector.frames_per_batch // cfg.env.num_envs
     c, lo = cfg.collector, cfg.loss
-    print(f"# batch {c.frames_per_batch} frames, {lo.epochs} epochs, minibatch {minibatch_size(cfg)}")
-    print("| actor x2 | critic x2 | activation | torch threads | update (s) |")
-    print("|---|---|---|---|---|")
-    for size, act in [(s, a) for s in args.sizes for a in args.activations]:
-        cfg.model.activation = act
-        a, c = (int(v) for v in size.split(","))
-        cfg.model.actor_hidden, cfg.model.critic_hidden = [a, a], [c, c]
-        actor, critic = make_models(cfg, obs.size, env.action_spec)
-        with torch.no_grad():
-            data = env.rollout(steps, actor, break_when_any_done=False)
-        loss, adv = make_loss(cfg, actor, critic)
-        opt = torch.optim.Adam(loss.parameters(), lr=cfg.optim.lr)
-        for threads in args.threads:
-            torch.set_num_threads(threads)
-            ppo_update(data.clone(), loss, adv, opt, cfg)
-            t = time.perf_counter()
-            for _ in range(args.repeats):
-                ppo_update(data.clone(), loss, adv, opt, cfg)
-            dt = (time.perf_counter() - t) / args.repeats
-            print(f"| {a} | {c} | {act} | {threads} | {dt:.2f} |", flush=True)
+    print(
+        f"# batch {c.frames_per_batch} frames, {lo.epochs} epochs, minibatch {minibatch_size(cfg)};"
+        f" medians of {args.rounds} rounds"
+    )
+    print("| actor x2 | critic x2 | activation | torch threads | fused (s) | ClipPPOLoss (s) |")
+    print("|---|---|---|---|---|---|")
+    for size in args.sizes:
+        for act in args.activations:
+            a, w = (int(v) for v in size.split(","))
+            cfg.model.activation, cfg.model.actor_hidden, cfg.model.critic_hidden = act, [a, a], [w, w]
+            actor, critic = make_models(cfg, obs.size, env.action_spec)
+            with torch.no_grad():
+                data = env.rollout(steps, actor, break_when_any_done=False)
+            learner = PPO(cfg, actor, critic)
+            for threads in args.threads:
+                torch.set_num_threads(threads)
+                times = {"fused": [], "ClipPPOLoss": []}
+                for _ in range(args.rounds):
+                    for name, fused in (("fused", learner.fused), ("ClipPPOLoss", None)):
+                        t = time.perf_counter()
+                        ppo_update(data.clone(), learner.loss_module, learner.advantage, learner.optimizer, cfg, fused)
+                        times[name].append(time.perf_counter() - t)
+                f, r = (statistics.median(times[k]) for k in ("fused", "ClipPPOLoss"))
+                print(f"| {a} | {w} | {act} | {threads} | {f:.3f} | {r:.3f} |", flush=True)
 
 
 if __name__ == "__main__":

@@ -2,7 +2,7 @@
 
 Train, evaluate, notebooks and tests all build envs here. Order matters and is fixed:
     TDTS (before CSS, whose episode bookkeeping must see TDTS's done) -> JD -> CSS -> given starts
-    -> odometry noise -> policy observation -> motor-speed action -> episode statistics.
+    -> odometry noise -> policy observation -> motor-speed action -> episode statistics (training).
 """
 
 from __future__ import annotations
@@ -45,7 +45,7 @@ def make_base_env(
     return QuadrotorEnv(
         int(num_envs or e.num_envs),
         control_hz=e.control_hz,
-        physics_dt=e.physics_dt,
+        physics_dt=physics_step(cfg),
         episode_seconds=e.episode_seconds,
         goal=tuple(e.goal),
         airframe=flown,
@@ -56,6 +56,12 @@ def make_base_env(
         start_motors=e.start_motors,
         num_threads=e.num_threads,
     )
+
+
+def physics_step(cfg) -> float:
+    """MuJoCo's step for `cfg`: env.physics_dt, or one step per control step when it is null."""
+    e = cfg.env
+    return float(e.physics_dt) if e.physics_dt is not None else 1.0 / float(e.control_hz)
 
 
 def make_noise(noise, num_envs: int, dt: float):
@@ -85,8 +91,9 @@ def make_env(
 ) -> TransformedEnv:
     """Build the env for `cfg`.
 
-    samplers=False switches JD, CSS, TDTS and `env.randomize` off whatever the config says
-    (evaluation: the flown world is the nominal one unless `airframe` says otherwise);
+    samplers=False switches JD, CSS, TDTS, `env.randomize` and the episode statistics
+    (RewardSum, StepCounter) off whatever the config says (evaluation: the flown world is the
+    nominal one unless `airframe` says otherwise);
     noise overrides `cfg.noise`; given_starts adds a GivenStarts transform (`env.transform`
     member) through which a caller places envs at chosen starts on the next reset;
     policy_io=False leaves out the policy's observation and action maps, for controllers that
@@ -143,8 +150,9 @@ def make_env(
             )
         )
         ts.append(action)
-    ts.append(RewardSum())
-    ts.append(StepCounter())
+    if samplers:  # episode statistics for training's logs; flights judge whole trajectories instead
+        ts.append(RewardSum())
+        ts.append(StepCounter())
     env = BFCEnv(base, Compose(*ts))
     if seed is not None:
         env.set_seed(seed)

@@ -96,7 +96,7 @@ def test_train_rejects_an_unknown_plus_key_with_a_one_line_error():
     [
         ("env.num_envs=0", "env.num_envs must be an integer >= 1, got 0"),
         ("env.goal=[nan,0,1.5]", "env.goal must be 3 finite numbers"),
-        ("loss.num_minibatches=0", "loss.num_minibatches must be in [1, collector.frames_per_batch=16384]"),
+        ("loss.num_minibatches=0", "loss.num_minibatches must be in [1, collector.frames_per_batch=8192]"),
         ("eval.threshold=0", "eval.threshold must be > 0"),
     ],
 )
@@ -112,7 +112,7 @@ def test_a_smaller_batch_alone_is_a_valid_config():
 
     cfg = compose(["collector.frames_per_batch=2048"])
     validate(cfg)
-    assert minibatch_size(cfg) == 512  # follows the batch: 4 minibatches
+    assert minibatch_size(cfg) == 128  # follows the batch: 16 minibatches
     cfg = compose(["loss.minibatch_size=1000"])
     assert minibatch_size(cfg) == 1000
 
@@ -122,11 +122,11 @@ def test_jd_decay_follows_the_run_length_unless_set():
     from bfc.factory import find_transform, make_env
     from bfc.transforms import JumpingDistribution
 
-    # the schema's null follows the run (the paper's variants); the robust extras pin 40M (p -> 0.75)
+    # the schema's null follows the run (the paper's variants); the robust extras pin 32M (p -> 0.75 over 8M)
     cases = (
         (["extras=none", "collector.total_frames=3000000"], 3_000_000),
         (["extras=none", "jd.decay_frames=5"], 5),
-        (["collector.total_frames=3000000"], 40_000_000),
+        (["collector.total_frames=3000000"], 32_000_000),
     )
     for overrides, expected in cases:
         env = make_env(compose([*overrides, "env.num_envs=2"]))

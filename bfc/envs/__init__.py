@@ -1,6 +1,21 @@
 """The MuJoCo Hummingbird as a batched TorchRL env."""
 
 from bfc.envs.params import AirframeParams
-from bfc.envs.quadrotor import QuadrotorEnv, RandomizeParams, RewardParams, StartParams, TerminationParams
+from bfc.envs.quadrotor import (
+    REFERENCE_PHYSICS_DT,
+    QuadrotorEnv,
+    RandomizeParams,
+    RewardParams,
+    StartParams,
+    TerminationParams,
+)
 
-__all__ = ["AirframeParams", "QuadrotorEnv", "RandomizeParams", "RewardParams", "StartParams", "TerminationParams"]
+__all__ = [
+    "REFERENCE_PHYSICS_DT",
+    "AirframeParams",
+    "QuadrotorEnv",
+    "RandomizeParams",
+    "RewardParams",
+    "StartParams",
+    "TerminationParams",
+]

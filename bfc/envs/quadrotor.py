@@ -6,7 +6,12 @@ Why it is built this way:
 - Within one control step the motor command is constant, so the motor lag has a closed form: the
   thrust of every physics substep is known before the step and the whole batch is integrated with
   one threaded `mujoco.rollout` call (no Python loop over envs or substeps).
-- Rotor drag depends on the velocity, so it is held constant over the control step (4 ms by default).
+- The four thrusts reach MuJoCo as one body-frame wrench (force and torque actuators at the body's
+  origin), so a randomised mass or inertia is a per-env gain on that wrench (a body of mass m'
+  under force F moves as the nominal body under F m / m'): every env steps the same compiled model.
+- Rotor drag depends on the velocity, so it is held constant over the control step.
+- `physics_dt` is the MuJoCo step: 0.002 s (the reference simulator every evaluation flies) by
+  default; training may take one step per control step (docs/env.md, "Physics step").
 """
 
 from __future__ import annotations
@@ -30,6 +35,7 @@ from bfc.envs.rotations import euler_to_quat
 
 # Layout of MuJoCo's mjSTATE_FULLPHYSICS vector for this model: time, qpos (3 + 4), qvel (3 + 3).
 _POS, _QUAT, _LINVEL, _ANGVEL = slice(1, 4), slice(4, 8), slice(8, 11), slice(11, 14)
+REFERENCE_PHYSICS_DT = 0.002  # s: the simulator every evaluation flies (training may step coarser)
 HULL_HALF_SIZE = (0.2, 0.2, 0.04)  # collision box of the asset (m); its bottom is 0.04 m below the centre
 GROUND_HEIGHT = HULL_HALF_SIZE[2]  # centre height of a level drone resting on the floor
 
@@ -104,10 +110,10 @@ class RandomizeParams:
     """Per-episode randomisation of the world (domain randomisation), drawn at every reset from
     the env's generator; all off by default (then nothing is drawn and runs are unchanged).
 
-    Airframe ranges are multipliers [low, high] of the nominal value, uniform per episode. Motor
-    constant and motor lag are continuous (per-env columns of the NumPy motor model); mass and
-    inertia change the rigid body, so they take `levels` evenly spaced values each and every env
-    flies one of the precompiled MjModels (one threaded rollout still steps them all).
+    Airframe ranges are multipliers [low, high] of the nominal value, uniform per episode, each a
+    per-env column of the NumPy motor model: motor constant and motor lag directly, mass and
+    inertia as gains on the body wrench (exact for the rigid body in flight; floor contact acts on
+    the nominal mass).
     """
 
     external_force: float = 0.0  # N: a constant horizontal force, random direction, size uniform in [0, this]
@@ -115,7 +121,6 @@ class RandomizeParams:
     inertia: tuple[float, float] = (1.0, 1.0)  # x the base link's inertia (all three axes)
     motor_constant: tuple[float, float] = (1.0, 1.0)  # x k_f (thrust per speed squared)
     motor_lag: tuple[float, float] = (1.0, 1.0)  # x both motor time constants
-    levels: int = 5  # distinct masses (and inertias) compiled when their range is not a point
 
     def __post_init__(self) -> None:
         v = self.external_force
@@ -130,9 +135,6 @@ class RandomizeParams:
             )
             _check(ok, f"env.randomize.{name}", "[low, high] multipliers with 0 < low <= high", r)
             setattr(self, name, (float(r[0]), float(r[1])))
-        _check(
-            isinstance(self.levels, int) and self.levels >= 2, "env.randomize.levels", "an integer >= 2", self.levels
-        )
 
     def active(self, name: str) -> bool:
         low, high = getattr(self, name)
@@ -163,7 +165,8 @@ def _as(cls, value):
 
 
 def build_model(airframe: AirframeParams, physics_dt: float) -> mujoco.MjModel:
-    """Compile the shipped MJCF with the given airframe parameters."""
+    """Compile the shipped MJCF with the given airframe parameters (masses, inertia, rotor
+    positions); the rotors' thrust and moments are the env's wrench, not the model's."""
     path = resources.files("bfc.envs") / "assets" / "hummingbird.xml"
     spec = mujoco.MjSpec.from_file(str(path))
     spec.option.timestep = physics_dt
@@ -176,7 +179,6 @@ def build_model(airframe: AirframeParams, physics_dt: float) -> mujoco.MjModel:
         rotor = spec.body(f"rotor_{i}")
         rotor.mass = airframe.rotor_mass
         rotor.pos = [dx * airframe.arm_length, dy * airframe.arm_length, airframe.rotor_height]
-        spec.actuator(f"rotor_{i}").gear = [0, 0, 1, 0, 0, ROTOR_YAW_SIGNS[i] * airframe.moment_constant]
     return spec.compile()
 
 
@@ -196,7 +198,7 @@ class QuadrotorEnv(EnvBase):
         num_envs: int = 1,
         *,
         control_hz: float = 100.0,
-        physics_dt: float = 0.002,
+        physics_dt: float = REFERENCE_PHYSICS_DT,
         episode_seconds: float = 5.0,
         goal: tuple[float, float, float] = (0.0, 0.0, 1.5),
         airframe: AirframeParams | dict | None = None,
@@ -238,6 +240,10 @@ class QuadrotorEnv(EnvBase):
         self.termination = _as(TerminationParams, termination)
         self.start_params = _as(StartParams, start)
         self.randomize = _as(RandomizeParams, randomize)
+        # How much of the `randomize` ranges is drawn from, in [0, 1]: a training curriculum
+        # (bfc.training.curriculum) widens it from a start fraction to 1; ranges shrink towards 1
+        # (the nominal airframe) and the wind towards 0. Set between batches, never mid-episode.
+        self.randomize_scale = 1.0
         self.control_hz = float(control_hz)
         self.physics_dt = float(physics_dt)
         self.substeps = substeps
@@ -252,14 +258,11 @@ class QuadrotorEnv(EnvBase):
 
         self.model = build_model(self.airframe, self.physics_dt)
         self._datas = [mujoco.MjData(self.model) for _ in range(num_threads)]
-        # One model per env for the rollout: the nominal one, or with mass / inertia randomised a
-        # pool of compiled variants (index = mass level * inertia levels + inertia level).
-        self._pool, self._mass_levels, self._inertia_levels = self._model_pool()
-        self._model_index = torch.zeros(num_envs, dtype=torch.long)
-        self._models = [self.model] * num_envs
+        self._models = [self.model] * num_envs  # the rollout takes one model per env: all the same one
         self._rollout = mujoco.rollout.Rollout(nthread=num_threads)
         self._nstate = mujoco.mj_stateSize(self.model, mujoco.mjtState.mjSTATE_FULLPHYSICS)
         assert self._nstate == 14, "asset layout changed: update the state slices"
+        assert self.model.nu == 9, "asset actuators changed: update the wrench columns"
 
         # Per-env state (float64, as MuJoCo integrates). The hot path works on NumPy views (`*_np`)
         # of these tensors: a NumPy op on a (N,) column costs a third of a torch op.
@@ -267,8 +270,10 @@ class QuadrotorEnv(EnvBase):
         self._physics = torch.zeros(n, self._nstate, dtype=f64)
         self._physics_np = self._physics.numpy()
         self._out = np.zeros((n, substeps, self._nstate))
+        # MuJoCo's controls per substep: body force (3) and torque (3), external force (3, world)
         self._ctrl = torch.zeros(n, substeps, self.model.nu, dtype=f64)
         self._ctrl_np = self._ctrl.numpy()
+        self._external = torch.zeros(n, 3, dtype=f64)  # the external force as set (N, world frame)
         self._obs_np = np.zeros((n, 30))  # staging buffer for the outputs (see _observe)
         self._motor = torch.zeros(n, 4, dtype=f64)
         self._motor_np = self._motor.numpy()
@@ -279,78 +284,68 @@ class QuadrotorEnv(EnvBase):
         self._steps = torch.zeros(n, dtype=torch.long)
         self._steps_np = self._steps.numpy()
         self._goal = torch.tensor(goal, dtype=torch.float32).expand(n, 3).clone()
-        # Per-env motor model (randomised per episode by `env.randomize`, else the nominal values):
-        # thrust constant k_f and the closed-form motor lag, the decay exp(-t / tau) at each
-        # substep's midpoint (for the thrust of that substep) and at the end of the step, for
-        # speeding up and for slowing down.
-        self._motor_scale = torch.ones(n, 2, dtype=f64)  # x motor_constant, x time constants
-        self._motor_scale_np = self._motor_scale.numpy()
+        # Per-env airframe multipliers (randomised per episode by `env.randomize`, else ones):
+        # mass, inertia, motor constant, motor time constants. From them: the wrench gains (the
+        # nominal body's mass and inertia over the flown one's), the thrust constant k_f and the
+        # closed-form motor lag, the decay exp(-t / tau) at each substep's midpoint (for the thrust
+        # of that substep) and at the end of the step, for speeding up and for slowing down.
+        self._airframe_scale = torch.ones(n, 4, dtype=f64)
+        self._airframe_scale_np = self._airframe_scale.numpy()
+        self._force_gain = np.ones((n, 1))
+        self._torque_gain = np.ones((n, 1, 3))
         self._kf = np.full((n, 1, 1), self.airframe.motor_constant)
         self._mid = ((np.arange(substeps) + 0.5) * physics_dt).reshape(1, substeps, 1)
         self._decay_sub = (np.empty((n, substeps, 1)), np.empty((n, substeps, 1)))
         self._decay_step = (np.empty((n, 1)), np.empty((n, 1)))
-        self._apply_motor_scale(np.ones(n, dtype=bool))
+        self._apply_airframe_scale(np.ones(n, dtype=bool))
+        # the rotor layout as wrench rows: torque x = L sum dy_i T_i, torque y = -L sum dx_i T_i,
+        # torque z = moment_constant sum sign_i T_i (motor order of SPEC.md)
+        a = self.airframe
+        self._torque_rows = np.array(
+            [
+                [a.arm_length * dy for _, dy in ROTOR_DIRECTIONS],
+                [-a.arm_length * dx for dx, _ in ROTOR_DIRECTIONS],
+                [a.moment_constant * sign for sign in ROTOR_YAW_SIGNS],
+            ]
+        ).T  # (4, 3): thrusts (..., 4) @ rows -> torques (..., 3)
         self._cos_ground_tilt = math.cos(math.radians(self.termination.ground_tilt_deg))
         self._generator = torch.Generator()
         self._generator.manual_seed(0 if seed is None else seed)
         self._make_specs()
 
-    def _model_pool(self):
-        """The compiled bodies envs may fly: [nominal], or mass x inertia levels of `randomize`."""
-        r = self.randomize
-        masses = np.linspace(*r.mass, r.levels) if r.active("mass") else np.ones(1)
-        inertias = np.linspace(*r.inertia, r.levels) if r.active("inertia") else np.ones(1)
-        if len(masses) == len(inertias) == 1:
-            return None, masses, inertias
-        a, pool = self.airframe, np.empty(len(masses) * len(inertias), dtype=object)
-        for i, mass in enumerate(masses):
-            for j, inertia in enumerate(inertias):
-                body = AirframeParams(
-                    **{**asdict(a), "body_mass": a.body_mass * mass, "inertia": tuple(v * inertia for v in a.inertia)}
-                )
-                pool[i * len(inertias) + j] = build_model(body, self.physics_dt)
-        return pool, masses, inertias
-
-    def _apply_motor_scale(self, m: np.ndarray) -> None:
-        """Recompute the motor model of the envs in mask `m` from `_motor_scale`."""
-        a, scale = self.airframe, self._motor_scale_np[m]
-        self._kf[m, 0, 0] = a.motor_constant * scale[:, 0]
+    def _apply_airframe_scale(self, m: np.ndarray) -> None:
+        """Recompute the wrench gains and the motor model of the envs in mask `m` from their
+        airframe multipliers (mass, inertia, motor constant, motor lag)."""
+        a, scale = self.airframe, self._airframe_scale_np[m]
+        self._force_gain[m, 0] = a.total_mass / (a.total_mass + a.body_mass * (scale[:, 0] - 1))
+        rigid, base = np.array(a.rigid_inertia), np.array(a.inertia)
+        self._torque_gain[m, 0] = rigid / (rigid + base * (scale[:, 1:2] - 1))
+        self._kf[m, 0, 0] = a.motor_constant * scale[:, 2]
         taus = (a.time_constant_up, a.time_constant_down)
         for decay_sub, decay_step, tau in zip(self._decay_sub, self._decay_step, taus, strict=True):
-            t = (tau * scale[:, 1]).reshape(-1, 1, 1)
+            t = (tau * scale[:, 3]).reshape(-1, 1, 1)
             decay_sub[m] = np.exp(-self._mid / t)
             decay_step[m] = np.exp(-self.dt / t[:, 0])
+        self._write_external(m)
 
     @property
     def airframe_scale(self) -> dict:
         """Each env's flown airframe as multipliers of the nominal one (N,) each: what
         `env.randomize` drew for the current episode (all ones when off)."""
-        index = self._model_index.numpy()
-        return {
-            "mass": torch.from_numpy(self._mass_levels[index // len(self._inertia_levels)]),
-            "inertia": torch.from_numpy(self._inertia_levels[index % len(self._inertia_levels)]),
-            "motor_constant": self._motor_scale[:, 0].clone(),
-            "motor_lag": self._motor_scale[:, 1].clone(),
-        }
+        return {name: self._airframe_scale[:, col].clone() for col, name in enumerate(AIRFRAME_RANGES)}
 
     def _randomize_airframe(self, m: np.ndarray) -> None:
         """Draw a new airframe for the envs in mask `m` (only the ranges that are on draw)."""
-        r, k, g = self.randomize, int(m.sum()), self._generator
-        if self._pool is not None:
-            levels_m, levels_i = len(self._mass_levels), len(self._inertia_levels)
-            i = torch.randint(levels_m, (k,), generator=g) if levels_m > 1 else torch.zeros(k, dtype=torch.long)
-            j = torch.randint(levels_i, (k,), generator=g) if levels_i > 1 else torch.zeros(k, dtype=torch.long)
-            self._model_index.numpy()[m] = (i * levels_i + j).numpy()
-            self._models = self._pool[self._model_index.numpy()].tolist()
+        r, k, g, scale = self.randomize, int(m.sum()), self._generator, self.randomize_scale
         changed = False
-        for col, name in enumerate(("motor_constant", "motor_lag")):
+        for col, name in enumerate(AIRFRAME_RANGES):
             if r.active(name):
-                low, high = getattr(r, name)
+                low, high = (1 + scale * (v - 1) for v in getattr(r, name))
                 u = torch.rand(k, generator=g, dtype=torch.float64).numpy()
-                self._motor_scale_np[m, col] = low + (high - low) * u
+                self._airframe_scale_np[m, col] = low + (high - low) * u
                 changed = True
         if changed:
-            self._apply_motor_scale(m)
+            self._apply_airframe_scale(m)
 
     # ----------------------------------------------------------------- specs
     def _make_specs(self) -> None:
@@ -397,22 +392,29 @@ class QuadrotorEnv(EnvBase):
     @property
     def external_force(self) -> torch.Tensor:
         """(N, 3) the constant external force on each body (N, world frame; a copy)."""
-        return torch.from_numpy(self._ctrl_np[:, 0, 8:11].copy()).float()
+        return self._external.float()
 
     def set_external_force(self, force, env_ids: torch.Tensor | None = None) -> None:
         """A constant force (newtons, world frame) on the body's centre: wind, a tether, a push.
         `force` is (3,) or (n, 3); it stays until set again (it is not reset with the episode)."""
         force = torch.as_tensor(force, dtype=torch.float64)
-        rows = slice(None) if env_ids is None else torch.as_tensor(env_ids).numpy()
-        count = self._ctrl_np[rows].shape[0]
+        rows = np.ones(self.num_envs, dtype=bool)
+        if env_ids is not None:
+            rows = np.zeros(self.num_envs, dtype=bool)
+            rows[torch.as_tensor(env_ids).numpy()] = True
+        count = int(rows.sum())
         if force.shape not in ((3,), (count, 3)):
             raise ValueError(
                 f"external_force must have shape (3,) or ({count}, 3) (newtons, world frame), got {tuple(force.shape)}"
             )
         if not bool(torch.isfinite(force).all()):
             raise ValueError(f"external_force must be finite, got {force.tolist()}")
-        value = force.numpy()
-        self._ctrl_np[rows, :, 8:11] = value[..., None, :] if value.ndim == 2 else value
+        self._external.numpy()[rows] = force.numpy()
+        self._write_external(rows)
+
+    def _write_external(self, m: np.ndarray) -> None:
+        """The external force of the envs in mask `m` as MuJoCo controls (scaled by the mass gain)."""
+        self._ctrl_np[m, :, 6:9] = (self._external.numpy()[m] * self._force_gain[m])[:, None, :]
 
     def sample_default_starts(self, n: int | None = None) -> torch.Tensor:
         """(n, 12) starts from the task distribution D: on the floor, level, at rest."""
@@ -427,7 +429,7 @@ class QuadrotorEnv(EnvBase):
         return torch.from_numpy(start)
 
     # ----------------------------------------------------------------- state (checkpoints)
-    _STATE = ("physics", "motor", "lin_acc", "ang_acc", "steps", "goal", "ctrl", "motor_scale", "model_index")
+    _STATE = ("physics", "motor", "lin_acc", "ang_acc", "steps", "goal", "external", "airframe_scale")
 
     def get_extra_state(self) -> dict:
         """Everything that evolves between steps (physics, motor speeds, accelerations, step
@@ -455,9 +457,7 @@ class QuadrotorEnv(EnvBase):
             mine.copy_(theirs)  # in place: the NumPy views of the hot path stay valid
         self._generator.set_state(state["generator"])
         self.physics_failures = int(state["physics_failures"])
-        self._apply_motor_scale(np.ones(self.num_envs, dtype=bool))
-        if self._pool is not None:
-            self._models = self._pool[self._model_index.numpy()].tolist()
+        self._apply_airframe_scale(np.ones(self.num_envs, dtype=bool))
 
     # ----------------------------------------------------------------- TorchRL hooks
     def _set_seed(self, seed: int | None) -> None:
@@ -507,10 +507,11 @@ class QuadrotorEnv(EnvBase):
         self._steps_np[m] = 0
         if self.randomize.external_force > 0:  # a new wind for each new episode
             u = torch.rand(int(m.sum()), 2, generator=self._generator, dtype=torch.float64).numpy()
-            size, angle = u[:, 0] * self.randomize.external_force, (u[:, 1] * 2 - 1) * math.pi
-            force = np.stack((size * np.cos(angle), size * np.sin(angle), np.zeros_like(size)), -1)
-            self._ctrl_np[m, :, 8:11] = force[:, None, :]
+            size = u[:, 0] * self.randomize.external_force * self.randomize_scale
+            angle = (u[:, 1] * 2 - 1) * math.pi
+            self._external.numpy()[m] = np.stack((size * np.cos(angle), size * np.sin(angle), np.zeros_like(size)), -1)
         self._randomize_airframe(m)
+        self._write_external(m)
 
     def _step(self, tensordict: TensorDictBase) -> TensorDictBase:
         action = tensordict.get(keys.ACTION)
@@ -535,16 +536,21 @@ class QuadrotorEnv(EnvBase):
         thrust = np.where(up[:, None], *self._decay_sub)  # (N, substeps, 4): lag decay, then speed, then thrust
         thrust *= lag[:, None]
         thrust += cmd[:, None]
-        ctrl = self._ctrl_np
-        np.multiply(self._kf * thrust, thrust, out=ctrl[:, :, 0:4])
+        thrust *= self._kf * thrust
         old = self._physics_np.copy()
         vx, vy = _body_xy_velocity(old)
         spin = w0[:, 0] + w0[:, 1] + w0[:, 2] + w0[:, 3]  # motor speeds are never negative
         drag, rolling = -a.rotor_drag_coefficient * spin, -a.rolling_moment_coefficient * spin
-        ctrl[:, :, 4] = (drag * vx)[:, None]
-        ctrl[:, :, 5] = (drag * vy)[:, None]
-        ctrl[:, :, 6] = (rolling * vx)[:, None]
-        ctrl[:, :, 7] = (rolling * vy)[:, None]
+        # the body wrench: rotor drag and the summed thrust, the thrusts' torques and reaction
+        # moments plus the rolling moment, each times the env's gain (mass or inertia)
+        ctrl, gain = self._ctrl_np, self._force_gain  # gain (N, 1)
+        ctrl[:, :, 0] = (drag * vx)[:, None] * gain
+        ctrl[:, :, 1] = (drag * vy)[:, None] * gain
+        ctrl[:, :, 2] = (thrust[..., 0] + thrust[..., 1] + thrust[..., 2] + thrust[..., 3]) * gain
+        torque = thrust @ self._torque_rows
+        torque[..., 0] += (rolling * vx)[:, None]
+        torque[..., 1] += (rolling * vy)[:, None]
+        np.multiply(torque, self._torque_gain, out=ctrl[:, :, 3:6])
         self._integrate()
         w0[:] = cmd + lag * np.where(up, *self._decay_step)
         new = self._physics_np

@@ -23,7 +23,8 @@ class ProtocolEvaluator:
 
     def __init__(self, cfg):
         e = cfg.eval
-        eval_cfg = OmegaConf.merge(cfg, {"env": {"episode_seconds": e.seconds + 1.0}})
+        # the reference simulator (eval.physics_dt), whatever step training integrates with
+        eval_cfg = OmegaConf.merge(cfg, {"env": {"episode_seconds": e.seconds + 1.0, "physics_dt": e.physics_dt}})
         self.env = make_env(eval_cfg, num_envs=e.num_starts, samplers=False, noise={"kind": "none"}, given_starts=True)
         self.env.set_seed(e.seed)
         self.starts = protocol_starts(e.num_starts, e.seed)

@@ -18,7 +18,7 @@ from torchrl.envs import TransformedEnv
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 
 from bfc import keys
-from bfc.envs import AirframeParams
+from bfc.envs import REFERENCE_PHYSICS_DT, AirframeParams
 from bfc.factory import find_transform, make_env
 from bfc.transforms import GivenStarts, MotorSpeedAction
 
@@ -42,14 +42,30 @@ def one_torch_thread():
         torch.set_num_threads(before)
 
 
+_RECORDED = (
+    keys.ODOMETRY,
+    keys.GOAL,
+    keys.POSITION,
+    keys.QUATERNION,
+    keys.LINEAR_VELOCITY,
+    keys.ANGULAR_VELOCITY,
+    keys.MOTOR_SPEEDS,
+)
+
+
 @torch.no_grad()
-def run_flights(env: TransformedEnv, policy, starts: torch.Tensor, steps: int, goal_schedule=None) -> TensorDict:
+def run_flights(
+    env: TransformedEnv, policy, starts: torch.Tensor, steps: int, goal_schedule=None, lean: bool = True
+) -> TensorDict:
     """Fly `policy` (deterministic) from `starts` (n, 12) for `steps` env steps.
 
     goal_schedule: optional list of (step, goal (3,)) switching the goal in flight.
     Returns a TensorDict of shape (n, steps) with the ground truth, what the controller saw
     (`"odometry"`), the controller's `"action"` (motor speed commands, rad/s), `"goal"`, `"alive"`, `"time"` (s) and
     `"controller_seconds"` (wall-clock of the controller's call for the whole batch at that step).
+    bfc's own actor on an env whose only transforms are the starts and the policy's maps flies
+    through `_LeanSteps` (the same flights, without TorchRL's per-step plumbing); lean=False
+    forces TorchRL's `env.step` (the reference the lean loop is tested against).
     """
     base = env.base_env
     _given_starts(env).set_starts(starts.float())
@@ -64,30 +80,70 @@ def run_flights(env: TransformedEnv, policy, starts: torch.Tensor, steps: int, g
     to_rad_s = action_map.to_command if action_map is not None else (lambda a: a)
     td = env.reset()
     n = base.num_envs
+    stepper = _LeanSteps.for_env(env, policy) if lean else None
     policy = fast_policy(policy)
     alive = torch.ones(n, dtype=torch.bool)
-    cols = {k: [] for k in (keys.STATE, keys.ODOMETRY, keys.GOAL, keys.ACTION, "alive", "controller_seconds")}
+    cols = {k: [] for k in (*_RECORDED, keys.ACTION, "alive", "controller_seconds")}
     with set_exploration_type(ExplorationType.DETERMINISTIC), one_torch_thread():
         for t in range(steps):
             if t in schedule and t > 0:
                 base.set_goal(schedule[t])
                 td.set(keys.GOAL, base.goal)
             t0 = time.perf_counter()
-            td = policy(td)
-            cols["controller_seconds"].append(time.perf_counter() - t0)
-            td = env.step(td)
-            nxt = td.get("next")
+            if stepper is not None:
+                command = stepper.act(td)
+                cols["controller_seconds"].append(time.perf_counter() - t0)
+                nxt = stepper.step(command)
+            else:
+                td = policy(td)
+                cols["controller_seconds"].append(time.perf_counter() - t0)
+                command = to_rad_s(td.get(keys.ACTION)).clone()  # a controller may reuse its buffer
+                td = env.step(td)
+                nxt = td.get("next")
             alive = alive & ~nxt.get(keys.TERMINATED).reshape(n)
             # the env writes a new buffer each step, so the step's tensors are kept as they are
-            for key in (keys.STATE, keys.ODOMETRY, keys.GOAL):
+            for key in _RECORDED:
                 cols[key].append(nxt.get(key))
-            cols[keys.ACTION].append(to_rad_s(td.get(keys.ACTION)).clone())  # a controller may reuse its buffer
+            cols[keys.ACTION].append(command)
             cols["alive"].append(alive)
-            td = env._step_mdp(td)
-    out = {key: torch.stack(cols[key], 1) for key in (keys.STATE, keys.ODOMETRY, keys.GOAL, keys.ACTION, "alive")}
+            td = nxt if stepper is not None else env._step_mdp(td)
+    out = TensorDict(
+        {key: torch.stack(cols[key], 1) for key in (*_RECORDED, keys.ACTION, "alive")}, batch_size=[n, steps]
+    )
     out["time"] = torch.tensor([(t + 1) * base.dt for t in range(steps)]).expand(n, steps).clone()
     out["controller_seconds"] = torch.tensor(cols["controller_seconds"]).expand(n, steps).clone()
-    return TensorDict(out, batch_size=[n, steps])
+    return out
+
+
+class _LeanSteps:
+    """One control step of bfc's own deterministic actor, as TorchRL's `env.step` runs it on an
+    env whose transforms are GivenStarts, PolicyObservation and MotorSpeedAction only: the
+    actor's mean, the action map to rad/s, the base env's step, then the observation's step (the
+    only transform with per-step work). tests/evaluation/test_protocol.py checks the flights are
+    TorchRL's bit for bit; an in-training evaluation runs about twice as fast this way."""
+
+    def __init__(self, env: TransformedEnv, head, observation, action_map):
+        self.base, self.head, self.observation, self.action_map = env.base_env, head, observation, action_map
+
+    @classmethod
+    def for_env(cls, env: TransformedEnv, policy):
+        from bfc.policy import is_gaussian_actor
+        from bfc.transforms import PolicyObservation
+
+        kinds = {type(t) for t in env.transform}
+        if not is_gaussian_actor(policy) or kinds != {GivenStarts, PolicyObservation, MotorSpeedAction}:
+            return None
+        return cls(
+            env, policy.module[0].module, find_transform(env, PolicyObservation), find_transform(env, MotorSpeedAction)
+        )
+
+    def act(self, td: TensorDict) -> torch.Tensor:
+        loc, _ = self.head(td.get(keys.OBSERVATION))
+        return self.action_map.to_command(loc)
+
+    def step(self, command: torch.Tensor) -> TensorDict:
+        request = TensorDict({keys.ACTION: command}, batch_size=self.base.batch_size)
+        return self.observation._step(request, self.base._step(request))
 
 
 def fast_policy(policy):
@@ -99,12 +155,14 @@ def fast_policy(policy):
 
 
 def config_for(env_settings: dict | None = None, **sections):
-    """A full config (defaults) with the given `env` settings and sections merged in."""
+    """A full config (defaults) with the given `env` settings and sections merged in. A policy
+    file's training-time randomisation is left out: flights never randomise (and files of older
+    releases carry randomisation keys this one no longer has)."""
     from bfc.config import Config
 
     cfg = OmegaConf.structured(Config)
     if env_settings:
-        cfg.env = OmegaConf.merge(cfg.env, env_settings)
+        cfg.env = OmegaConf.merge(cfg.env, {k: v for k, v in env_settings.items() if k != "randomize"})
     for name, value in sections.items():
         cfg[name] = OmegaConf.merge(cfg[name], value)
     return cfg
@@ -141,6 +199,7 @@ def fly(
     control_hz=None,
     airframe: dict | None = None,
     external_force=None,
+    physics_dt: float = REFERENCE_PHYSICS_DT,
 ) -> TensorDict:
     """Fly all `starts` (n, 12) at once for `seconds`, never resetting mid-flight.
 
@@ -152,6 +211,8 @@ def fly(
     airframe: AirframeParams fields of the flown body, e.g. {"body_mass": 0.884} (model mismatch):
     a classical controller keeps the nominal model it was built for, a policy its own maps.
     external_force: a constant force in newtons, world frame, (3,) or one per start (n, 3).
+    physics_dt: MuJoCo's step, the reference 0.002 s by default, whatever step a policy was
+    trained with (its control rate is its own).
     Returns a TensorDict (n, T); see `run_flights`.
     """
     from bfc.controllers import CONTROLLERS
@@ -180,6 +241,7 @@ def fly(
     elif control_hz is not None and float(control_hz) != float(settings["control_hz"]):
         raise ValueError(f"this policy was trained at {settings['control_hz']} Hz and is flown at that rate only")
     cfg.env.episode_seconds = seconds + 1.0
+    cfg.env.physics_dt = float(physics_dt)
     n = starts.shape[0]
     env = make_env(cfg, num_envs=n, samplers=False, given_starts=True, policy_io=policy_io, airframe=airframe)
     env.set_seed(seed)

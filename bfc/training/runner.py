@@ -32,6 +32,7 @@ from bfc.collectors import episode_stats, make_collector
 from bfc.evaluation.evaluator import ProtocolEvaluator
 from bfc.factory import find_transform, make_env
 from bfc.policy import SamplingActor, atomic_save, save_policy
+from bfc.training.curriculum import Curriculum
 from bfc.training.ppo import make_learner, make_models
 from bfc.transforms import ControlledStartingState, JumpingDistribution, PolicyObservation
 
@@ -113,6 +114,8 @@ class Runner:
         self.learner = make_learner(cfg, self.actor, self.critic)
         self.jd = find_transform(self.env, JumpingDistribution)
         self.css = find_transform(self.env, ControlledStartingState)
+        self.curriculum = Curriculum(cfg, self.env, self.jd)
+        self.curriculum.apply(0)  # before the collector's first reset
         self.evaluator = ProtocolEvaluator(cfg)
         fpb = int(cfg.collector.frames_per_batch)
         self.total = -(-int(cfg.collector.total_frames) // fpb) * fpb  # whole batches
@@ -245,6 +248,7 @@ class Runner:
         if ckpt is None:
             last_success = self.evaluate()["eval/success_rate"]  # the untrained policy, at frame 0
 
+        self.curriculum.apply(self.frames)
         t_batch = time.perf_counter()
         for data in self.collector:
             t_collected = time.perf_counter()
@@ -268,6 +272,7 @@ class Runner:
                 progress.update(n)
                 progress.set_postfix(fps=f"{metrics['time/fps']:.0f}", success=f"{last_success:.2f}", refresh=False)
             torch.set_num_threads(1)  # collection: MuJoCo's threads get the cores
+            self.curriculum.apply(self.frames)  # the next batch's world
             t_batch = time.perf_counter()
             if self.frames >= self.total or self.stopped_early:
                 break
@@ -306,6 +311,7 @@ class Runner:
         metrics["train/policy_std"] = self.actor.module[0].module.log_std.exp().mean().item()
         metrics["train/physics_failures"] = float(self.env.base_env.physics_failures)
         metrics["train/jd_probability"] = self.jd.probability if self.jd is not None else 0.0
+        metrics["train/curriculum"] = self.curriculum.scale(self.frames - n)  # the batch just collected
         return metrics
 
     def _finish(self) -> dict:

@@ -63,6 +63,11 @@ class JumpingDistribution(StartSampler):
         highs += [vhi] * 3 + [math.radians(whi)] * 3
         self.register_buffer("low", torch.tensor(lows))
         self.register_buffer("high", torch.tensor(highs))
+        # How much of the attitude and velocity ranges is drawn from (about their centres), in
+        # [0, 1]: a training curriculum (bfc.training.curriculum) widens it to 1. Height and yaw
+        # always take their whole ranges.
+        self.range_scale = 1.0
+        self._widens = torch.tensor([0.0, 1, 1, 0, 1, 1, 1, 1, 1, 1])  # z, roll, pitch, yaw, v, w
         self.register_buffer("frames", torch.zeros((), dtype=torch.long))
         self.register_buffer("air_starts", torch.zeros((), dtype=torch.long))
         self.register_buffer("resets", torch.zeros((), dtype=torch.long))
@@ -84,7 +89,9 @@ class JumpingDistribution(StartSampler):
 
     def fill_starts(self, start: torch.Tensor, mask: torch.Tensor) -> None:
         air = mask & (self.rand(self.num_envs) < self.probability)
-        drawn = self.low + (self.high - self.low) * self.rand(self.num_envs, 10)  # z, rpy, v, w
+        centre, half = (self.low + self.high) / 2, (self.high - self.low) / 2
+        half = half * (1 - self._widens * (1 - self.range_scale))
+        drawn = centre - half + 2 * half * self.rand(self.num_envs, 10)  # z, rpy, v, w
         start[:, 2:12] = torch.where(air.unsqueeze(-1), drawn, start[:, 2:12])
         self.air_starts += int(air.sum())
         self.resets += int(mask.sum())

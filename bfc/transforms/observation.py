@@ -27,7 +27,6 @@ from tensordict import TensorDictBase
 from torchrl.data import Composite, Unbounded
 
 from bfc import keys
-from bfc.envs.rotations import euler_to_quat, quat_to_matrix
 from bfc.transforms._base import BatchedTransform, check, reset_mask
 
 OBSERVATIONS = ("heading", "odometry")
@@ -101,21 +100,40 @@ class PolicyObservation(BatchedTransform):
             if self.position_integral:
                 parts.append(self._integral_input(integral, yaw, cos_sin))
             return torch.cat(parts, -1)
-        level = torch.cat((odometry[..., 9:11], torch.zeros_like(yaw).unsqueeze(-1)), -1)
-        rot = quat_to_matrix(euler_to_quat(level)).flatten(-2)  # roll and pitch only
-        rel = to_heading_frame(odometry[..., 0:3] - goal, yaw, cos_sin).clamp(-self.position_clip, self.position_clip)
-        parts = [
-            rel,
-            rot,
-            to_heading_frame(odometry[..., 3:6], yaw, cos_sin) * self.velocity_scale,
-            odometry[..., 12:15] * self.angular_velocity_scale,
-            last_action,
+        # Column by column (one stack at the end): every op here runs once per control step on
+        # the whole batch, and a few wide ops cost less than many tensor reshapes.
+        c, s = cos_sin
+        clip, vs = self.position_clip, self.velocity_scale
+        px, py, pz = (odometry[..., 0:3] - goal).unbind(-1)
+        vx, vy, vz = odometry[..., 3], odometry[..., 4], odometry[..., 5]
+        roll, pitch = odometry[..., 9], odometry[..., 10]
+        cr, sr, cp, sp = roll.cos(), roll.sin(), pitch.cos(), pitch.sin()
+        columns = [
+            (c * px + s * py).clamp(-clip, clip),  # position relative to the goal, heading frame
+            (c * py - s * px).clamp(-clip, clip),
+            pz.clamp(-clip, clip),
+            # the rotation matrix of roll and pitch only (Ry(pitch) Rx(roll)), row by row
+            cp,
+            sp * sr,
+            sp * cr,
+            torch.zeros_like(cr),
+            cr,
+            -sr,
+            -sp,
+            cp * sr,
+            cp * cr,
+            (c * vx + s * vy) * vs,  # velocity, heading frame
+            (c * vy - s * vx) * vs,
+            vz * vs,
         ]
+        columns += (odometry[..., 12:15] * self.angular_velocity_scale).unbind(-1)
+        columns += last_action.unbind(-1)
         if self.include_acceleration:
-            parts += [odometry[..., 6:9] * self.acceleration_scale, odometry[..., 15:18] * self.acceleration_scale]
+            columns += (odometry[..., 6:9] * self.acceleration_scale).unbind(-1)
+            columns += (odometry[..., 15:18] * self.acceleration_scale).unbind(-1)
         if self.position_integral:
-            parts.append(self._integral_input(integral, yaw, cos_sin))
-        return torch.cat(parts, -1)
+            columns += self._integral_input(integral, yaw, cos_sin).unbind(-1)
+        return torch.stack(columns, -1)
 
     def _integral_input(self, integral: torch.Tensor | None, yaw: torch.Tensor, cos_sin=None) -> torch.Tensor:
         if integral is None:
@@ -123,8 +141,8 @@ class PolicyObservation(BatchedTransform):
         return to_heading_frame(integral, yaw, cos_sin) * self.integral_scale
 
     def _call(self, td: TensorDictBase) -> TensorDictBase:
-        integral = self.integral.clone() if self.position_integral else None  # no copy per step when off
-        obs = self.build(td.get(keys.ODOMETRY), td.get(keys.GOAL), self.last_action.clone(), integral)
+        # build() writes a new tensor: the buffers themselves are never handed out
+        obs = self.build(td.get(keys.ODOMETRY), td.get(keys.GOAL), self.last_action, self.integral)
         td.set(keys.OBSERVATION, obs)
         return td
 

@@ -367,15 +367,44 @@ def test_randomized_airframe_is_drawn_per_episode_within_its_ranges_and_reproduc
         assert v.max() - v.min() > 0.6 * (high - low), name  # spread over the range
         assert not torch.equal(v, second[name]), name  # a new airframe every episode
         assert torch.equal(draws(3)[0][name], v) and not torch.equal(draws(4)[0][name], v), name  # by seed
-    # mass and inertia take `levels` values (precompiled bodies), the motor ones are continuous
-    assert len(first["mass"].unique()) == 5 and len(first["motor_constant"].unique()) == 64
+    assert all(len(v.unique()) == 64 for v in first.values())  # continuous: one draw per env
     off = QuadrotorEnv(4, seed=3)
     off.reset()
     assert all((v == 1).all() for v in off.airframe_scale.values())
     with pytest.raises(ValueError, match="env.randomize.mass"):
         RandomizeParams(mass=(1.3, 0.7))
-    with pytest.raises(ValueError, match="env.randomize.levels"):
-        RandomizeParams(levels=1)
+
+
+@pytest.mark.parametrize(
+    "randomize, airframe",
+    [
+        ({"mass": (1.3, 1.3)}, {"body_mass": 0.68 * 1.3}),
+        ({"inertia": (1.5, 1.5)}, {"inertia": (0.0105, 0.0105, 0.018)}),
+    ],
+)
+def test_randomized_mass_and_inertia_fly_as_the_compiled_body(randomize, airframe):
+    """A randomised mass or inertia is a gain on the body wrench of the one compiled model: over a
+    short flight it moves as a model compiled with that mass or inertia does (within 0.5 mm: the
+    gains use the rigid-body inertia of params.py, and the composite body's centre of mass shifts
+    slightly with the base link's mass)."""
+    start = torch.zeros(4, 12, dtype=torch.float64)
+    start[:, 2], start[:, 3], start[:, 9] = 1.5, 0.4, 1.0  # tilted and rolling
+    commands = torch.Generator().manual_seed(0)
+    paths = []
+    for env in (
+        QuadrotorEnv(4, randomize=randomize),
+        QuadrotorEnv(4, airframe=airframe),  # motors start at rest in both
+    ):
+        td = env.reset(TensorDict({"start_state": start}, batch_size=[4]))
+        commands.manual_seed(0)
+        for _ in range(20):
+            noise = 0.1 * torch.randn(4, 4, generator=commands)
+            td = env.step(td.set("action", (457.9 * (1 + noise)).float()))["next"]
+        paths.append(torch.cat((td["state", "position"], td["state", "quaternion"]), -1))
+        moved = (td["state", "position"] - start[:, :3].float()).norm(dim=-1)
+        env.close()
+    assert moved.min() > 0.01  # it flew
+    torch.testing.assert_close(paths[0], paths[1], atol=5e-4, rtol=0)
 
 
 def test_randomized_airframe_changes_the_flown_physics():

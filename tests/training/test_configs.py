@@ -53,8 +53,9 @@ def test_robust_extras_are_on_by_default_and_off_for_the_paper_variants():
     assert robust.model.position_integral and not plain.model.position_integral
     assert tuple(robust.env.randomize.mass) == (0.7, 1.3) and robust.env.randomize.external_force == 1.0
     assert plain.env.randomize == schema.env.randomize and plain.jd == schema.jd and plain.optim == schema.optim
+    assert robust.curriculum.frames > 0 and plain.curriculum == schema.curriculum and plain.curriculum.frames == 0
     changed = {k for k in robust if robust[k] != plain[k]}
-    assert changed == {"variant", "model", "env", "jd", "optim"}
+    assert changed == {"variant", "model", "env", "jd", "curriculum", "optim"}
     # an ablation variant can still take them on explicitly
     assert compose_cfg(["+ablation=jd", "extras=robust"]).model.position_integral
 

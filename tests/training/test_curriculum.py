@@ -1,0 +1,77 @@
+"""The difficulty curriculum widens JD's starts and the airframe randomisation with the frames."""
+
+import math
+
+import pytest
+import torch
+
+from bfc import keys
+from bfc.factory import find_transform, make_env
+from bfc.training.curriculum import Curriculum
+from bfc.transforms import JumpingDistribution
+
+from .helpers import compose_cfg
+
+WIDE = [
+    "extras=none",
+    "env.num_envs=512",
+    "jd.roll_range=[-180,180]",
+    "jd.angular_velocity_range=[-100,100]",
+    "env.randomize.mass=[0.5,1.5]",
+    "env.randomize.external_force=2.0",
+    "curriculum.frames=1000",
+    "curriculum.start=0.25",
+]
+
+
+def spreads(env):
+    td = env.reset()
+    base = env.base_env
+    roll = td[keys.ODOMETRY][:, 9].abs().max().item()
+    spin = td[keys.ANGULAR_VELOCITY].abs().max().item()
+    mass = base.airframe_scale["mass"]
+    return roll, spin, (mass - 1).abs().max().item(), base.external_force.norm(dim=-1).max().item()
+
+
+def test_scale_rises_linearly_from_start_to_one_and_is_off_by_default():
+    cfg = compose_cfg(WIDE)
+    env = make_env(cfg, seed=0)
+    cur = Curriculum(cfg, env, find_transform(env, JumpingDistribution))
+    assert [cur.scale(f) for f in (0, 500, 1000, 10**9)] == pytest.approx([0.25, 0.625, 1.0, 1.0])
+    off = compose_cfg(["extras=none"])
+    assert Curriculum(off, env).scale(0) == 1.0
+
+
+def test_starts_and_airframes_widen_with_the_scale():
+    cfg = compose_cfg(WIDE)
+    env = make_env(cfg, seed=0)
+    cur = Curriculum(cfg, env, find_transform(env, JumpingDistribution))
+    cur.apply(0)  # a quarter of every range
+    roll, spin, mass, wind = spreads(env)
+    assert math.radians(35) < roll <= math.radians(45) + 1e-5
+    assert math.radians(20) < spin <= math.radians(25) + 1e-5
+    assert 0.1 < mass <= 0.125 + 1e-9 and 0.3 < wind <= 0.5 + 1e-6
+    cur.apply(1000)  # all of it
+    roll, spin, mass, wind = spreads(env)
+    assert roll > math.radians(170) and spin > math.radians(90) and mass > 0.45 and wind > 1.8
+    env.close()
+
+
+def test_a_resumed_run_flies_the_curriculum_where_it_left_off(tmp_path):
+    from bfc.training.runner import Runner
+
+    from .helpers import TINY
+
+    cfg = compose_cfg([*TINY, "curriculum.frames=4096", "curriculum.start=0.5"])
+    runner = Runner(cfg, tmp_path)
+    assert runner.env.base_env.randomize_scale == 0.5 and runner.jd.range_scale == 0.5
+    runner.learn()  # 2048 frames
+    assert runner.jd.range_scale == pytest.approx(0.75)
+    runner.close()
+    resumed = Runner(
+        compose_cfg([*TINY, "collector.total_frames=4096", "curriculum.frames=4096", "curriculum.start=0.5"]), tmp_path
+    )
+    resumed.load(torch.load(tmp_path / "checkpoints" / "last.pt", weights_only=True))
+    resumed.curriculum.apply(resumed.frames)
+    assert resumed.jd.range_scale == pytest.approx(0.75)
+    resumed.close()
