@@ -6,7 +6,8 @@ the deterministic policy, the judge).
 
 Prints the median over rounds (shared cloud cores change speed from one second to the next) and
 raw MuJoCo's time for the same physics (100 bodies, the policy's control rate, 10 s, in-air hover):
-the floor under any evaluation of this length.
+the floor under any evaluation of this length. Two paths, in alternating rounds: the lean loop
+training uses (`run_flights`' default) and TorchRL's `env.step` (the same flights, bit for bit).
 """
 
 from __future__ import annotations
@@ -46,14 +47,17 @@ def main() -> None:
             f"model.action_map={payload['model'].get('action_map', 'speed')}",
         ]
     )
-    evaluator = ProtocolEvaluator(cfg)
-    evaluator(actor)  # warm-up
-    times, success = [], None
-    for _ in range(args.rounds):
-        t = time.perf_counter()
-        success = evaluator(actor)["eval/success_rate"]
-        times.append(time.perf_counter() - t)
-    evaluator.close()
+    evaluators = {"lean": ProtocolEvaluator(cfg), "TorchRL env.step": ProtocolEvaluator(cfg, lean=False)}
+    times, success = {name: [] for name in evaluators}, {}
+    for ev in evaluators.values():
+        ev(actor)  # warm-up
+    for _ in range(args.rounds):  # alternating rounds: shared cores change speed
+        for name, ev in evaluators.items():
+            t = time.perf_counter()
+            success[name] = ev(actor)["eval/success_rate"]
+            times[name].append(time.perf_counter() - t)
+    for ev in evaluators.values():
+        ev.close()
     flown = OmegaConf.merge(cfg, {"env": {"physics_dt": cfg.eval.physics_dt}})  # the simulator evaluations fly
     env = make_base_env(flown, num_envs=cfg.eval.num_starts, randomize=False)
     steps = round(cfg.eval.seconds * hz)
@@ -63,10 +67,12 @@ def main() -> None:
         f"# {platform.processor() or platform.machine()}, mujoco {mujoco.__version__}, torch {torch.__version__}; "
         f"{args.policy} at {hz:g} Hz, {cfg.eval.num_starts} starts, {cfg.eval.seconds:g} s"
     )
-    print(
-        f"evaluation: median {statistics.median(times):.2f} s (min {min(times):.2f}, max {max(times):.2f}, "
-        f"{args.rounds} rounds; success {success:.2f}); raw MuJoCo for the same physics: {raw:.2f} s"
-    )
+    for name, t in times.items():
+        print(
+            f"evaluation ({name}): median {statistics.median(t):.2f} s (min {min(t):.2f}, max {max(t):.2f}, "
+            f"{args.rounds} rounds; success {success[name]:.2f})"
+        )
+    print(f"raw MuJoCo for the same physics: {raw:.2f} s")
 
 
 if __name__ == "__main__":

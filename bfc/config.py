@@ -183,6 +183,9 @@ class EvalConfig(ProtocolConfig):
 
     seed: int = 1  # validation starts: not the test starts (seed 0) that evaluate.py and the docs report
     interval_frames: int = 500_000  # the default run flies at about 0.5M frames: see it when it does
+    # denser evaluations early, when a run first flies: every early_interval_frames until early_frames
+    early_frames: int = 2_000_000  # 0: off
+    early_interval_frames: int = 250_000
     physics_dt: float = 0.002  # the reference simulator, as every evaluate.py flight (bfc.envs.REFERENCE_PHYSICS_DT)
 
 
@@ -376,6 +379,8 @@ def validate(cfg) -> None:
     _check(cfg.model.init_std > 0, "model.init_std", "> 0", cfg.model.init_std)
     _check(cfg.noise.kind in ("none", "gaussian", "ou"), "noise.kind", "none, gaussian or ou", cfg.noise.kind)
     _check(cfg.eval.interval_frames > 0, "eval.interval_frames", "> 0", cfg.eval.interval_frames)
+    _check(cfg.eval.early_frames >= 0, "eval.early_frames", ">= 0 (0: off)", cfg.eval.early_frames)
+    _check(cfg.eval.early_interval_frames > 0, "eval.early_interval_frames", "> 0", cfg.eval.early_interval_frames)
     _check(cfg.eval.physics_dt > 0, "eval.physics_dt", "> 0", cfg.eval.physics_dt)
     if cfg.env.physics_dt is not None:
         _check(cfg.env.physics_dt > 0, "env.physics_dt", "null (one step per control step) or > 0", cfg.env.physics_dt)

@@ -19,9 +19,11 @@ from bfc.factory import make_env
 class ProtocolEvaluator:
     """Flies a policy from `cfg.eval`'s starts (validation starts during training) and returns the
     `eval/*` metrics: success rate, position and tilt error over the last 2 s of the flights that
-    did not crash, crash rate."""
+    did not crash, crash rate. `lean=False` flies through TorchRL's `env.step` (the same flights,
+    slower: bench/eval_time.py compares the two)."""
 
-    def __init__(self, cfg):
+    def __init__(self, cfg, lean: bool = True):
+        self.lean = lean
         e = cfg.eval
         # the reference simulator (eval.physics_dt), whatever step training integrates with
         eval_cfg = OmegaConf.merge(cfg, {"env": {"episode_seconds": e.seconds + 1.0, "physics_dt": e.physics_dt}})
@@ -32,7 +34,7 @@ class ProtocolEvaluator:
         self.threshold, self.hold_seconds = e.threshold, e.hold_seconds
 
     def __call__(self, actor) -> dict[str, float]:
-        flights = run_flights(self.env, actor, self.starts, self.steps)
+        flights = run_flights(self.env, actor, self.starts, self.steps, lean=self.lean)
         verdict = judge(flights, self.threshold, self.hold_seconds)
         err = tail_distance(flights)
         tail = slice(-err.shape[1], None)

@@ -100,6 +100,15 @@ def read_checkpoint(run_dir: Path) -> dict | None:
     raise ValueError(f"cannot resume {run_dir}: " + "; ".join(problems))
 
 
+def next_evaluation(frames: int, e) -> int:
+    """The frame count of the evaluation after `frames`: every `e.interval_frames`, and every
+    `e.early_interval_frames` while below `e.early_frames` (a run that flies early is seen early)."""
+    regular = (frames // e.interval_frames + 1) * e.interval_frames
+    if frames >= e.early_frames:
+        return regular
+    return min(regular, (frames // e.early_interval_frames + 1) * e.early_interval_frames)
+
+
 class Runner:
     """Builds everything a run needs from its config and trains it; `train(cfg, run_dir)` is
     `Runner(cfg, run_dir).learn()`. A run directory that holds a checkpoint is resumed."""
@@ -242,7 +251,7 @@ class Runner:
 
             progress = tqdm(total=self.total, initial=self.frames, unit="frames", unit_scale=True, dynamic_ncols=True)
         e, c = cfg.eval, cfg.checkpoint
-        next_eval = (self.frames // e.interval_frames + 1) * e.interval_frames
+        next_eval = next_evaluation(self.frames, e)
         next_ckpt = (self.frames // c.interval_frames + 1) * c.interval_frames
         last_success = self.history[-1]["eval/success_rate"] if self.history else float("nan")
         if ckpt is None:
@@ -261,7 +270,7 @@ class Runner:
                 self.log(metrics, self.frames)
             if self.frames >= next_eval or self.frames >= self.total:
                 last_success = self.evaluate()["eval/success_rate"]
-                next_eval += e.interval_frames
+                next_eval = next_evaluation(self.frames, e)
                 if self.css is not None and self.logger is not None:
                     self.logger.experiment.add_figure("css/square_values", css_figure(self.css), self.frames)
                 self.stopped_early = self.frames < self.total and self.should_stop()

@@ -193,3 +193,25 @@ def test_stop_at_success_ends_the_run_after_patience_evaluations(tmp_path):
     assert [h["frames"] for h in summary["history"]] == [0, 1024, 2048]
     assert (tmp_path / "policy_last.pt").is_file()
     assert torch.load(tmp_path / "checkpoints" / "last.pt", weights_only=True)["frames"] == 2048
+
+
+def test_early_evaluations_come_every_early_interval_then_every_interval(tmp_path):
+    from types import SimpleNamespace
+
+    from bfc.training.runner import next_evaluation
+
+    e = SimpleNamespace(interval_frames=1000, early_frames=500, early_interval_frames=200)
+    schedule, frames = [], 0
+    while frames < 3000:
+        frames = next_evaluation(frames, e)
+        schedule.append(frames)
+    assert schedule == [200, 400, 600, 1000, 2000, 3000]
+    assert next_evaluation(0, SimpleNamespace(interval_frames=1000, early_frames=0, early_interval_frames=200)) == 1000
+    overrides = [*TINY, "eval.interval_frames=1024", "eval.early_frames=1024", "eval.early_interval_frames=512"]
+    summary = train(compose_cfg(overrides), tmp_path / "early")
+    assert [h["frames"] for h in summary["history"]] == [0, 512, 1024, 2048]
+    # evaluating more often does not change what is learned
+    train(compose_cfg([*TINY, "eval.early_frames=0"]), tmp_path / "plain")
+    early, plain = (load_policy(tmp_path / run / "policy_last.pt")[0] for run in ("early", "plain"))
+    for a, b in zip(early.parameters(), plain.parameters(), strict=True):
+        assert torch.equal(a, b)
