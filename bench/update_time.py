@@ -26,7 +26,7 @@ def main() -> None:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--threads", type=int, nargs="+", default=[1, 2])
     p.add_argument("--sizes", nargs="+", default=["64,64", "64,128"], help="actor width,critic width")
-    p.add_argument("--activations", nargs="+", default=["tanh"])
+    p.add_argument("--activations", nargs="+", default=["relu"])
     p.add_argument("--rounds", type=int, default=5)
     p.add_argument("overrides", nargs="*", help="train.py overrides, e.g. loss.num_minibatches=8")
     args = p.parse_args()

@@ -32,8 +32,8 @@ def _given_starts(env: TransformedEnv) -> GivenStarts:
 
 @contextmanager
 def one_torch_thread():
-    """Flights run with one torch thread: MuJoCo's rollout threads own the cores (on 2 cores a
-    second torch thread slows a 100-start evaluation from 3.2 s to 4.9 s)."""
+    """Flights run with one torch thread: MuJoCo's rollout threads own the cores (a second torch
+    thread competes with them on 2 cores)."""
     before = torch.get_num_threads()
     torch.set_num_threads(1)
     try:

@@ -54,6 +54,7 @@ def test_robust_extras_are_on_by_default_and_off_for_the_paper_variants():
     assert tuple(robust.env.randomize.mass) == (0.7, 1.3) and robust.env.randomize.external_force == 1.0
     assert plain.env.randomize == schema.env.randomize and plain.jd == schema.jd and plain.optim == schema.optim
     assert robust.curriculum.frames > 0 and plain.curriculum == schema.curriculum and plain.curriculum.frames == 0
+    assert robust.env.reward.angular_velocity < plain.env.reward.angular_velocity == schema.env.reward.angular_velocity
     changed = {k for k in robust if robust[k] != plain[k]}
     assert changed == {"variant", "model", "env", "jd", "curriculum", "optim"}
     # an ablation variant can still take them on explicitly
