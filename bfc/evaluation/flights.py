@@ -120,7 +120,7 @@ class _LeanSteps:
     env whose transforms are GivenStarts, PolicyObservation and MotorSpeedAction only: the
     actor's mean, the action map to rad/s, the base env's step, then the observation's step (the
     only transform with per-step work). tests/evaluation/test_protocol.py checks the flights are
-    TorchRL's bit for bit; an in-training evaluation runs about twice as fast this way."""
+    TorchRL's bit for bit (bench/eval_time.py compares the two paths' wall-clock)."""
 
     def __init__(self, env: TransformedEnv, head, observation, action_map):
         self.base, self.head, self.observation, self.action_map = env.base_env, head, observation, action_map

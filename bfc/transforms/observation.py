@@ -36,8 +36,12 @@ def to_heading_frame(v: torch.Tensor, yaw: torch.Tensor, cos_sin=None) -> torch.
     """World vectors (..., 3) in the frame turned by `yaw` about z (`cos_sin`: the yaw's cosine
     and sine, when the caller turns several vectors by the same yaw)."""
     c, s = cos_sin if cos_sin is not None else (yaw.cos(), yaw.sin())
-    x, y = v[..., 0], v[..., 1]
-    return torch.stack((c * x + s * y, -s * x + c * y, v[..., 2]), -1)
+    return torch.stack(heading_columns(*v.unbind(-1), c, s), -1)
+
+
+def heading_columns(x, y, z, c, s) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """The columns of a world vector (x, y, z) turned by the yaw whose cosine and sine are c, s."""
+    return c * x + s * y, c * y - s * x, z
 
 
 class PolicyObservation(BatchedTransform):
@@ -108,24 +112,10 @@ class PolicyObservation(BatchedTransform):
         vx, vy, vz = odometry[..., 3], odometry[..., 4], odometry[..., 5]
         roll, pitch = odometry[..., 9], odometry[..., 10]
         cr, sr, cp, sp = roll.cos(), roll.sin(), pitch.cos(), pitch.sin()
-        columns = [
-            (c * px + s * py).clamp(-clip, clip),  # position relative to the goal, heading frame
-            (c * py - s * px).clamp(-clip, clip),
-            pz.clamp(-clip, clip),
-            # the rotation matrix of roll and pitch only (Ry(pitch) Rx(roll)), row by row
-            cp,
-            sp * sr,
-            sp * cr,
-            torch.zeros_like(cr),
-            cr,
-            -sr,
-            -sp,
-            cp * sr,
-            cp * cr,
-            (c * vx + s * vy) * vs,  # velocity, heading frame
-            (c * vy - s * vx) * vs,
-            vz * vs,
-        ]
+        columns = [p.clamp(-clip, clip) for p in heading_columns(px, py, pz, c, s)]  # goal-relative
+        # the rotation matrix of roll and pitch only (Ry(pitch) Rx(roll)), row by row
+        columns += [cp, sp * sr, sp * cr, torch.zeros_like(cr), cr, -sr, -sp, cp * sr, cp * cr]
+        columns += [v * vs for v in heading_columns(vx, vy, vz, c, s)]  # velocity, heading frame
         columns += (odometry[..., 12:15] * self.angular_velocity_scale).unbind(-1)
         columns += last_action.unbind(-1)
         if self.include_acceleration:
