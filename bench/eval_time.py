@@ -6,8 +6,10 @@ the deterministic policy, the judge).
 
 Prints the median over rounds (shared cloud cores change speed from one second to the next) and
 raw MuJoCo's time for the same physics (100 bodies, the policy's control rate, 10 s, in-air hover):
-the floor under any evaluation of this length. Two paths, in alternating rounds: the lean loop
-training uses (`run_flights`' default) and TorchRL's `env.step` (the same flights, bit for bit).
+the floor under any evaluation of this length. Three, in alternating rounds: the lean loop
+(`run_flights`' default) on the training step (what training's validation flies, eval.physics_dt
+null) and on the reference 0.002 s step (evaluate.py's test flights), and TorchRL's `env.step` on
+the reference step (the lean loop's flights, bit for bit).
 """
 
 from __future__ import annotations
@@ -23,6 +25,7 @@ from env_throughput import hover_rate  # bench/ is the script's directory
 from omegaconf import OmegaConf
 
 from bfc.config import compose
+from bfc.envs import REFERENCE_PHYSICS_DT
 from bfc.evaluation.evaluator import ProtocolEvaluator
 from bfc.factory import make_base_env
 from bfc.policy import load_policy
@@ -47,7 +50,12 @@ def main() -> None:
             f"model.action_map={payload['model'].get('action_map', 'speed')}",
         ]
     )
-    evaluators = {"lean": ProtocolEvaluator(cfg), "TorchRL env.step": ProtocolEvaluator(cfg, lean=False)}
+    reference = OmegaConf.merge(cfg, {"eval": {"physics_dt": REFERENCE_PHYSICS_DT}})
+    evaluators = {
+        "lean, training step (in-training validation)": ProtocolEvaluator(cfg),
+        f"lean, reference {REFERENCE_PHYSICS_DT} s (evaluate.py)": ProtocolEvaluator(reference),
+        f"TorchRL env.step, reference {REFERENCE_PHYSICS_DT} s": ProtocolEvaluator(reference, lean=False),
+    }
     times, success = {name: [] for name in evaluators}, {}
     for ev in evaluators.values():
         ev(actor)  # warm-up
@@ -58,11 +66,13 @@ def main() -> None:
             times[name].append(time.perf_counter() - t)
     for ev in evaluators.values():
         ev.close()
-    flown = OmegaConf.merge(cfg, {"env": {"physics_dt": cfg.eval.physics_dt}})  # the simulator evaluations fly
-    env = make_base_env(flown, num_envs=cfg.eval.num_starts, randomize=False)
-    steps = round(cfg.eval.seconds * hz)
-    raw = min(env.num_envs * steps / hover_rate(env, steps) for _ in range(3))  # seconds, best of 3
-    env.close()
+    steps, raw = round(cfg.eval.seconds * hz), {}
+    for label, physics_dt in (("training step", None), (f"reference {REFERENCE_PHYSICS_DT} s", REFERENCE_PHYSICS_DT)):
+        env = make_base_env(
+            OmegaConf.merge(cfg, {"env": {"physics_dt": physics_dt}}), num_envs=cfg.eval.num_starts, randomize=False
+        )
+        raw[label] = min(env.num_envs * steps / hover_rate(env, steps) for _ in range(3))  # seconds, best of 3
+        env.close()
     print(
         f"# {platform.processor() or platform.machine()}, mujoco {mujoco.__version__}, torch {torch.__version__}; "
         f"{args.policy} at {hz:g} Hz, {cfg.eval.num_starts} starts, {cfg.eval.seconds:g} s"
@@ -72,7 +82,8 @@ def main() -> None:
             f"evaluation ({name}): median {statistics.median(t):.2f} s (min {min(t):.2f}, max {max(t):.2f}, "
             f"{args.rounds} rounds; success {success[name]:.2f})"
         )
-    print(f"raw MuJoCo for the same physics: {raw:.2f} s")
+    for label, seconds in raw.items():
+        print(f"raw MuJoCo for the same physics ({label}): {seconds:.2f} s")
 
 
 if __name__ == "__main__":

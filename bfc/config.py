@@ -30,8 +30,8 @@ ALGORITHMS = ("ppo", "trpo", "ddpg")  # conf/algo/; bfc.training.ppo.make_learne
 class EnvConfig:
     num_envs: int = 256
     control_hz: float = 100.0  # the paper flew 250 Hz; 100 Hz learns faster and as well (docs/training.md)
-    # MuJoCo's step while training (s); null: one step per control step. Evaluations always fly
-    # the reference simulator (eval.physics_dt, 0.002 s); docs/env.md, "Physics step"
+    # MuJoCo's step while training (s); null: one step per control step. evaluate.py's test flights
+    # always fly the reference simulator (0.002 s); docs/env.md, "Physics step"
     physics_dt: float | None = None
     episode_seconds: float = 5.0
     goal: list[float] = field(default_factory=lambda: [0.0, 0.0, 1.5])
@@ -182,11 +182,15 @@ class EvalConfig(ProtocolConfig):
     """In-training evaluation: the protocol on validation starts (policy.pt is chosen on these)."""
 
     seed: int = 1  # validation starts: not the test starts (seed 0) that evaluate.py and the docs report
-    interval_frames: int = 500_000  # the default run flies at about 0.5M frames: see it when it does
-    # denser evaluations early, when a run first flies: every early_interval_frames until early_frames
+    interval_frames: int = 1_000_000  # after early_frames: a settled run needs few looks
+    # denser evaluations early, when a run first flies (about 0.5M frames for the default): every
+    # early_interval_frames until early_frames
     early_frames: int = 2_000_000  # 0: off
     early_interval_frames: int = 250_000
-    physics_dt: float = 0.002  # the reference simulator, as every evaluate.py flight (bfc.envs.REFERENCE_PHYSICS_DT)
+    at_start: bool = False  # also fly the untrained policy at frame 0 (a curve's first point; ~5 s)
+    # MuJoCo's step for the validation flights; null: the training step (env.physics_dt). evaluate.py's
+    # test flights always fly the reference 0.002 s (bfc.envs.REFERENCE_PHYSICS_DT)
+    physics_dt: float | None = None
 
 
 @dataclass
@@ -381,7 +385,8 @@ def validate(cfg) -> None:
     _check(cfg.eval.interval_frames > 0, "eval.interval_frames", "> 0", cfg.eval.interval_frames)
     _check(cfg.eval.early_frames >= 0, "eval.early_frames", ">= 0 (0: off)", cfg.eval.early_frames)
     _check(cfg.eval.early_interval_frames > 0, "eval.early_interval_frames", "> 0", cfg.eval.early_interval_frames)
-    _check(cfg.eval.physics_dt > 0, "eval.physics_dt", "> 0", cfg.eval.physics_dt)
+    if cfg.eval.physics_dt is not None:
+        _check(cfg.eval.physics_dt > 0, "eval.physics_dt", "null (the training step) or > 0", cfg.eval.physics_dt)
     if cfg.env.physics_dt is not None:
         _check(cfg.env.physics_dt > 0, "env.physics_dt", "null (one step per control step) or > 0", cfg.env.physics_dt)
     check_protocol(cfg.eval)

@@ -25,8 +25,10 @@ class ProtocolEvaluator:
     def __init__(self, cfg, lean: bool = True):
         self.lean = lean
         e = cfg.eval
-        # the reference simulator (eval.physics_dt), whatever step training integrates with
-        eval_cfg = OmegaConf.merge(cfg, {"env": {"episode_seconds": e.seconds + 1.0, "physics_dt": e.physics_dt}})
+        # eval.physics_dt, or (null) the step training integrates with: validation flies the
+        # simulator the policy learns in; the test flights of evaluate.py fly the reference step
+        physics = {} if e.physics_dt is None else {"physics_dt": e.physics_dt}
+        eval_cfg = OmegaConf.merge(cfg, {"env": {"episode_seconds": e.seconds + 1.0, **physics}})
         self.env = make_env(eval_cfg, num_envs=e.num_starts, samplers=False, noise={"kind": "none"}, given_starts=True)
         self.env.set_seed(e.seed)
         self.starts = protocol_starts(e.num_starts, e.seed)

@@ -254,7 +254,7 @@ class Runner:
         next_eval = next_evaluation(self.frames, e)
         next_ckpt = (self.frames // c.interval_frames + 1) * c.interval_frames
         last_success = self.history[-1]["eval/success_rate"] if self.history else float("nan")
-        if ckpt is None:
+        if ckpt is None and e.at_start:
             last_success = self.evaluate()["eval/success_rate"]  # the untrained policy, at frame 0
 
         self.curriculum.apply(self.frames)

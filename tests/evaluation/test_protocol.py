@@ -201,3 +201,19 @@ def test_lean_flights_are_torchrls_bit_for_bit(overrides):
         if key != "controller_seconds":
             assert torch.equal(lean.get(key), reference.get(key)), key
     env.close()
+
+
+@pytest.mark.parametrize(
+    ("overrides", "expected"),
+    [([], 0.01), (["env.physics_dt=0.005"], 0.005), (["eval.physics_dt=0.002"], 0.002)],
+)
+def test_validation_flies_the_training_step_unless_told(overrides, expected):
+    """In-training validation flies the simulator the policy learns in (eval.physics_dt null);
+    a given eval.physics_dt (evaluate.py's reference 0.002 s, say) replaces it."""
+    from bfc.config import compose
+    from bfc.evaluation.evaluator import ProtocolEvaluator
+
+    evaluator = ProtocolEvaluator(compose([*overrides, "eval.num_starts=2"]))
+    assert evaluator.env.base_env.physics_dt == pytest.approx(expected)
+    assert evaluator.steps == 1000  # 10 s at 100 Hz whatever the physics step
+    evaluator.close()

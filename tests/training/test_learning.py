@@ -13,6 +13,7 @@ def test_one_million_frames_learn_to_stay_aloft_and_approach_the_goal(tmp_path):
             "collector.total_frames=1000000",
             "eval.interval_frames=500000",
             "eval.early_frames=0",
+            "eval.at_start=true",
             "eval.num_starts=25",
             "logger.progress=false",
             "seed=1",

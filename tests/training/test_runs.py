@@ -186,11 +186,11 @@ def test_tiny_run_with_the_adaptive_kl_loss(tmp_path):
 
 
 def test_stop_at_success_ends_the_run_after_patience_evaluations(tmp_path):
-    # success >= 0 holds at every evaluation: the run stops after the 2nd one past frame 0
+    # success >= 0 holds at every evaluation: the run stops after the 2nd one
     overrides = [*TINY, "collector.total_frames=8192", "collector.stop_at_success=0.0", "collector.stop_patience=2"]
     summary = train(compose_cfg([*overrides, "env.episode_seconds=0.2"]), tmp_path)
     assert summary["stopped_early"] and summary["frames"] == 2048
-    assert [h["frames"] for h in summary["history"]] == [0, 1024, 2048]
+    assert [h["frames"] for h in summary["history"]] == [1024, 2048]
     assert (tmp_path / "policy_last.pt").is_file()
     assert torch.load(tmp_path / "checkpoints" / "last.pt", weights_only=True)["frames"] == 2048
 
@@ -208,10 +208,12 @@ def test_early_evaluations_come_every_early_interval_then_every_interval(tmp_pat
     assert schedule == [200, 400, 600, 1000, 2000, 3000]
     assert next_evaluation(0, SimpleNamespace(interval_frames=1000, early_frames=0, early_interval_frames=200)) == 1000
     overrides = [*TINY, "eval.interval_frames=1024", "eval.early_frames=1024", "eval.early_interval_frames=512"]
-    summary = train(compose_cfg(overrides), tmp_path / "early")
+    summary = train(compose_cfg([*overrides, "eval.at_start=true"]), tmp_path / "early")
     assert [h["frames"] for h in summary["history"]] == [0, 512, 1024, 2048]
-    # evaluating more often does not change what is learned
-    train(compose_cfg([*TINY, "eval.early_frames=0"]), tmp_path / "plain")
+    # by default the untrained policy is not flown; evaluating more often (or at frame 0) does not
+    # change what is learned
+    plain = train(compose_cfg([*TINY, "eval.early_frames=0"]), tmp_path / "plain")
+    assert [h["frames"] for h in plain["history"]] == [1024, 2048]
     early, plain = (load_policy(tmp_path / run / "policy_last.pt")[0] for run in ("early", "plain"))
     for a, b in zip(early.parameters(), plain.parameters(), strict=True):
         assert torch.equal(a, b)
