@@ -70,20 +70,24 @@ def main() -> None:
     )
     print(
         "| seed | 0.905 reached after (training) | from launch | 0.99 reached after (training) | from launch "
-        "| final success | best | frames/s overall | collection frames/s | update s/batch |"
+        "| final success | last three evaluations | whole run | frames/s overall | collection frames/s "
+        "| update s/batch |"
     )
-    print("|---|---|---|---|---|---|---|---|---|---|")
+    print("|---|---|---|---|---|---|---|---|---|---|---|")
     for seed in args.seeds:
         run_dir = Path(args.out) / f"seed{seed}"
         cmd = [sys.executable, "train.py", f"seed={seed}", "logger.progress=false", f"hydra.run.dir={run_dir}"]
         launched = time.time()
         subprocess.run(cmd + args.overrides, cwd=ROOT, check=True, stdout=subprocess.DEVNULL)
+        whole = time.time() - launched
         s = json.loads((run_dir / "summary.json").read_text())
         h = s["history"]
+        last_three = ", ".join(f"{e['eval/success_rate']:.2f}" for e in h[-3:])
         print(
             f"| {seed} | {fmt(s['first_reached_0.905'])} | {from_launch(h, 0.905, launched)} "
             f"| {fmt(s['first_reached_0.99'])} | {from_launch(h, 0.99, launched)} "
-            f"| {s['final_success_rate']:.2f} | {s['best_success_rate']:.2f} | {s['frames'] / s['wall_seconds']:,.0f} "
+            f"| {s['final_success_rate']:.2f} | {last_three} "
+            f"| {whole / 60:.1f} min | {s['frames'] / s['wall_seconds']:,.0f} "
             f"| {s['collection_frames_per_second']:,} | {s['update_seconds_per_batch']} |",
             flush=True,
         )
