@@ -13,9 +13,8 @@ from __future__ import annotations
 
 import argparse
 
-import torch
-
 from bfc.evaluation import fly, success
+from bfc.evaluation.report import start_tilt_degrees
 from bfc.evaluation.suites import any_starts
 
 
@@ -29,8 +28,7 @@ def main() -> None:
     if args.seed in (0, 1):
         p.error("seeds 0 and 1 are the test and validation starts: pick a development seed")
     starts = any_starts(args.num_drawn, args.seed)
-    tilt = torch.rad2deg(torch.acos((starts[:, 3].cos() * starts[:, 4].cos()).clamp(-1, 1)))  # roll, pitch
-    starts = starts[tilt > args.min_tilt]
+    starts = starts[start_tilt_degrees(starts) > args.min_tilt]
     print(f"# {len(starts)} of {args.num_drawn} any-attitude starts (seed {args.seed}) tilted > {args.min_tilt:g} deg")
     for path in args.policies:
         rate = success(fly(path, starts, seconds=10.0, seed=args.seed)).float().mean().item()
