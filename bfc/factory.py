@@ -122,6 +122,7 @@ def make_env(
                 yaw_range=tuple(j.yaw_range),
                 velocity_range=tuple(j.velocity_range),
                 angular_velocity_range=tuple(j.angular_velocity_range),
+                inverted_share=j.inverted_share,
             )
         )
     if samplers and cfg.css.enabled:

@@ -24,10 +24,15 @@ class Curriculum:
             return 1.0
         return self.start + (1.0 - self.start) * min(1.0, frames / self.frames)
 
+    def progress(self, frames: int) -> float:
+        """How far the curriculum is, 0 to 1 (1 without one): JD's upside-down share grows with it."""
+        return 1.0 if self.frames <= 0 else min(1.0, frames / self.frames)
+
     def apply(self, frames: int) -> float:
         """Set the scale for the batch that starts at `frames`; returns it."""
         s = self.scale(frames)
         self.base_env.randomize_scale = s
         if self.jd is not None:
             self.jd.range_scale = s
+            self.jd.inverted_scale = self.progress(frames)
         return s

@@ -40,8 +40,10 @@ class JumpingDistribution(StartSampler):
         yaw_range=(-180.0, 180.0),
         velocity_range=(0.0, 0.0),
         angular_velocity_range=(0.0, 0.0),
+        inverted_share: float = 0.0,
     ):
         super().__init__(num_envs)
+        check(0.0 <= inverted_share <= 1.0, "jd.inverted_share", "in [0, 1]", inverted_share)
         check(0.0 <= p0 <= 1.0, "jd.p0", "in [0, 1]", p0)
         check(isinstance(decay_frames, int) and decay_frames >= 0, "jd.decay_frames", "an integer >= 0", decay_frames)
         check(schedule in SCHEDULES, "jd.schedule", f"one of {SCHEDULES}", schedule)
@@ -67,6 +69,10 @@ class JumpingDistribution(StartSampler):
         # [0, 1]: a training curriculum (bfc.training.curriculum) widens it to 1. Height and yaw
         # always take their whole ranges.
         self.range_scale = 1.0
+        # Share of in-air starts mirrored upside down (tilt -> 180 deg - tilt), times `inverted_scale`
+        # (the curriculum raises it from 0 to 1 with its progress; 1 without one). Near-inverted
+        # starts are where the policy learns to flip before it thrusts (docs/training.md).
+        self.inverted_share, self.inverted_scale = float(inverted_share), 1.0
         self._widens = torch.tensor([0.0, 1, 1, 0, 1, 1, 1, 1, 1, 1])  # z, roll, pitch, yaw, v, w
         self.register_buffer("frames", torch.zeros((), dtype=torch.long))
         self.register_buffer("air_starts", torch.zeros((), dtype=torch.long))
@@ -92,6 +98,13 @@ class JumpingDistribution(StartSampler):
         centre, half = (self.low + self.high) / 2, (self.high - self.low) / 2
         half = half * (1 - self._widens * (1 - self.range_scale))
         drawn = centre - half + 2 * half * self.rand(self.num_envs, 10)  # z, rpy, v, w
+        share = self.inverted_share * self.inverted_scale
+        if share > 0:  # drawn only when asked, so runs without it keep their random streams
+            roll, pitch = drawn[:, 1], drawn[:, 2]
+            upright = torch.cos(roll) * torch.cos(pitch) > 0
+            flip = upright & (self.rand(self.num_envs) < share)
+            # roll + pi negates cos(roll) cos(pitch), the body z axis's vertical component
+            drawn[:, 1] = torch.where(flip, torch.remainder(roll + 2 * math.pi, 2 * math.pi) - math.pi, roll)
         start[:, 2:12] = torch.where(air.unsqueeze(-1), drawn, start[:, 2:12])
         self.air_starts += int(air.sum())
         self.resets += int(mask.sum())

@@ -65,13 +65,14 @@ def test_a_resumed_run_flies_the_curriculum_where_it_left_off(tmp_path):
     cfg = compose_cfg([*TINY, "curriculum.frames=4096", "curriculum.start=0.5"])
     runner = Runner(cfg, tmp_path)
     assert runner.env.base_env.randomize_scale == 0.5 and runner.jd.range_scale == 0.5
+    assert runner.jd.inverted_scale == 0.0  # JD's upside-down share grows with the progress
     runner.learn()  # 2048 frames
-    assert runner.jd.range_scale == pytest.approx(0.75)
+    assert runner.jd.range_scale == pytest.approx(0.75) and runner.jd.inverted_scale == pytest.approx(0.5)
     runner.close()
     resumed = Runner(
         compose_cfg([*TINY, "collector.total_frames=4096", "curriculum.frames=4096", "curriculum.start=0.5"]), tmp_path
     )
     resumed.load(torch.load(tmp_path / "checkpoints" / "last.pt", weights_only=True))
     resumed.curriculum.apply(resumed.frames)
-    assert resumed.jd.range_scale == pytest.approx(0.75)
+    assert resumed.jd.range_scale == pytest.approx(0.75) and resumed.jd.inverted_scale == pytest.approx(0.5)
     resumed.close()

@@ -60,6 +60,30 @@ def test_jd_air_starts_respect_ranges(cfg):
     assert v.abs().max() <= 1.0 and v.std() > 0.3
 
 
+def test_jd_inverted_share_mirrors_that_share_upside_down(cfg):
+    cfg = only(cfg, n=2000, jd=True)
+    cfg.jd.roll_range, cfg.jd.pitch_range = [-60.0, 60.0], [-60.0, 60.0]  # every drawn start upright
+
+    def upside_down(share, scale=1.0):
+        cfg.jd.inverted_share = share
+        env = make_env(cfg, seed=0)
+        find_transform(env, JumpingDistribution).inverted_scale = scale
+        q = env.reset()[keys.QUATERNION]
+        body_z_up = 1 - 2 * (q[:, 1] ** 2 + q[:, 2] ** 2)  # the body z axis's vertical component
+        return body_z_up
+
+    assert (upside_down(0.0) > 0).all()
+    up = upside_down(0.4)
+    inverted = up < 0
+    assert inverted.float().mean().item() == pytest.approx(0.4, abs=4 * math.sqrt(0.24 / 2000))
+    assert up[inverted].max() <= -0.25 + 1e-5  # drawn cos(roll) cos(pitch) >= 0.25, mirrored to <= -0.25
+    assert up[inverted].min() >= -1.0 - 1e-5 and up[inverted].min() < -0.99
+    half = (upside_down(0.4, scale=0.5) < 0).float().mean().item()  # the curriculum's progress scales it
+    assert half == pytest.approx(0.2, abs=4 * math.sqrt(0.16 / 2000))
+    with pytest.raises(ValueError, match="jd.inverted_share"):
+        JumpingDistribution(2, inverted_share=1.5)
+
+
 def test_jd_schedule_and_bad_values():
     jd = JumpingDistribution(2, p0=0.8, decay_frames=100, schedule="cosine")
     assert jd.probability_at(0) == pytest.approx(0.8) and jd.probability_at(50) == pytest.approx(0.4)
