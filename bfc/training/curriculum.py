@@ -19,14 +19,12 @@ class Curriculum:
         self.frames, self.start = int(c.frames), float(c.start)
         self.base_env, self.jd = env.base_env, jd
 
-    def scale(self, frames: int) -> float:
-        if self.frames <= 0:
-            return 1.0
-        return self.start + (1.0 - self.start) * min(1.0, frames / self.frames)
-
     def progress(self, frames: int) -> float:
         """How far the curriculum is, 0 to 1 (1 without one): JD's upside-down share grows with it."""
         return 1.0 if self.frames <= 0 else min(1.0, frames / self.frames)
+
+    def scale(self, frames: int) -> float:
+        return self.start + (1.0 - self.start) * self.progress(frames)
 
     def apply(self, frames: int) -> float:
         """Set the scale for the batch that starts at `frames`; returns it."""
