@@ -122,11 +122,11 @@ def test_jd_decay_follows_the_run_length_unless_set():
     from bfc.factory import find_transform, make_env
     from bfc.transforms import JumpingDistribution
 
-    # the schema's null follows the run (the paper's variants); the robust extras pin 28M (p -> 0.75 over their 7M)
+    # the schema's null follows the run (the paper's variants); the robust extras pin 32M (p -> 0.75 over 8M)
     cases = (
         (["extras=none", "collector.total_frames=3000000"], 3_000_000),
         (["extras=none", "jd.decay_frames=5"], 5),
-        (["collector.total_frames=3000000"], 28_000_000),
+        (["collector.total_frames=3000000"], 32_000_000),
     )
     for overrides, expected in cases:
         env = make_env(compose([*overrides, "env.num_envs=2"]))
