@@ -56,7 +56,7 @@ class JDConfig:
     yaw_range: list[float] = field(default_factory=lambda: [-180.0, 180.0])
     velocity_range: list[float] = field(default_factory=lambda: [0.0, 0.0])  # m/s, per axis
     angular_velocity_range: list[float] = field(default_factory=lambda: [0.0, 0.0])  # deg/s, per axis
-    inverted_share: float = 0.0  # share of in-air starts mirrored upside down (with the curriculum's progress)
+    inverted_share: float = 0.0  # of the right-way-up air starts, turned upside down (x curriculum progress)
 
 
 @dataclass
