@@ -6,16 +6,42 @@ at the starts the docs report.
 
 Draws `--num-drawn` any-attitude starts (z 1.5-3 m, at rest, uniform attitude) with `--seed`,
 keeps those tilted more than `--min-tilt` degrees, flies each policy from them for 10 s on the
-reference simulator and prints the success rate (the protocol's judge). Deterministic.
+reference simulator and prints the success rate (the protocol's judge). Deterministic; with
+`--sampled S` the policies fly actions drawn from their Gaussians (the trained std, torch seed S)
+instead of their means: a check of whether failures sit on a tie that noise would break.
 """
 
 from __future__ import annotations
 
 import argparse
+from contextlib import contextmanager
+
+import torch
 
 from bfc.evaluation import fly, success
 from bfc.evaluation.report import start_tilt_degrees
 from bfc.evaluation.suites import any_starts
+from bfc.policy import GaussianHead
+
+
+@contextmanager
+def sampled_actions(seed: int | None):
+    """Within it, every GaussianHead's mean is a draw from its Gaussian (what training flies)."""
+    if seed is None:
+        yield
+        return
+    mean = GaussianHead.forward
+
+    def draw(self, obs):
+        loc, scale = mean(self, obs)
+        return loc + scale * torch.randn_like(loc), scale
+
+    torch.manual_seed(seed)
+    GaussianHead.forward = draw
+    try:
+        yield
+    finally:
+        GaussianHead.forward = mean
 
 
 def main() -> None:
@@ -24,6 +50,7 @@ def main() -> None:
     p.add_argument("--seed", type=int, default=11, help="development starts (0: test, 1: validation; default 11)")
     p.add_argument("--num-drawn", type=int, default=1000)
     p.add_argument("--min-tilt", type=float, default=120.0, help="degrees between the body and world z axes")
+    p.add_argument("--sampled", type=int, default=None, metavar="S", help="fly sampled actions (torch seed S)")
     args = p.parse_args()
     if args.seed in (0, 1):
         p.error("seeds 0 and 1 are the test and validation starts: pick a development seed")
@@ -31,7 +58,8 @@ def main() -> None:
     starts = starts[start_tilt_degrees(starts) > args.min_tilt]
     print(f"# {len(starts)} of {args.num_drawn} any-attitude starts (seed {args.seed}) tilted > {args.min_tilt:g} deg")
     for path in args.policies:
-        rate = success(fly(path, starts, seconds=10.0, seed=args.seed)).float().mean().item()
+        with sampled_actions(args.sampled):
+            rate = success(fly(path, starts, seconds=10.0, seed=args.seed)).float().mean().item()
         print(f"{path}: {rate:.3f} recovered")
 
 

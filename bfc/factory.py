@@ -123,6 +123,7 @@ def make_env(
                 velocity_range=tuple(j.velocity_range),
                 angular_velocity_range=tuple(j.angular_velocity_range),
                 inverted_share=j.inverted_share,
+                inverted_at_rest=j.inverted_at_rest,
             )
         )
     if samplers and cfg.css.enabled:

@@ -41,9 +41,11 @@ class JumpingDistribution(StartSampler):
         velocity_range=(0.0, 0.0),
         angular_velocity_range=(0.0, 0.0),
         inverted_share: float = 0.0,
+        inverted_at_rest: float = 0.0,
     ):
         super().__init__(num_envs)
         check(0.0 <= inverted_share <= 1.0, "jd.inverted_share", "in [0, 1]", inverted_share)
+        check(0.0 <= inverted_at_rest <= 1.0, "jd.inverted_at_rest", "in [0, 1]", inverted_at_rest)
         check(0.0 <= p0 <= 1.0, "jd.p0", "in [0, 1]", p0)
         check(isinstance(decay_frames, int) and decay_frames >= 0, "jd.decay_frames", "an integer >= 0", decay_frames)
         check(schedule in SCHEDULES, "jd.schedule", f"one of {SCHEDULES}", schedule)
@@ -73,6 +75,9 @@ class JumpingDistribution(StartSampler):
         # (the curriculum raises it from 0 to 1 with its progress; 1 without one). Near-inverted
         # starts are where the policy learns to flip before it thrusts (docs/training.md).
         self.inverted_share, self.inverted_scale = float(inverted_share), 1.0
+        # Share of those upside-down starts released at rest (no velocity, no body rates): there
+        # no initial spin says which way to turn over, the hardest flip (docs/training.md).
+        self.inverted_at_rest = float(inverted_at_rest)
         self._widens = torch.tensor([0.0, 1, 1, 0, 1, 1, 1, 1, 1, 1])  # z, roll, pitch, yaw, v, w
         self.register_buffer("frames", torch.zeros((), dtype=torch.long))
         self.register_buffer("air_starts", torch.zeros((), dtype=torch.long))
@@ -105,6 +110,9 @@ class JumpingDistribution(StartSampler):
             flip = upright & (self.rand(self.num_envs) < share)
             # roll + pi negates cos(roll) cos(pitch), the body z axis's vertical component
             drawn[:, 1] = torch.where(flip, torch.remainder(roll + 2 * math.pi, 2 * math.pi) - math.pi, roll)
+            if self.inverted_at_rest > 0:  # again drawn only when asked
+                still = flip & (self.rand(self.num_envs) < self.inverted_at_rest)
+                drawn[:, 4:] = torch.where(still.unsqueeze(-1), 0.0, drawn[:, 4:])
         start[:, 2:12] = torch.where(air.unsqueeze(-1), drawn, start[:, 2:12])
         self.air_starts += int(air.sum())
         self.resets += int(mask.sum())

@@ -83,6 +83,23 @@ def test_jd_inverted_share_mirrors_that_share_upside_down(cfg):
         JumpingDistribution(2, inverted_share=1.5)
 
 
+def test_jd_inverted_at_rest_releases_that_share_of_upside_down_starts_still(cfg):
+    cfg = only(cfg, n=2000, jd=True)
+    cfg.jd.roll_range, cfg.jd.pitch_range = [-60.0, 60.0], [-60.0, 60.0]
+    cfg.jd.velocity_range, cfg.jd.angular_velocity_range = [-1.0, 1.0], [-100.0, 100.0]
+    cfg.jd.inverted_share, cfg.jd.inverted_at_rest = 0.5, 0.4
+    td = make_env(cfg, seed=0).reset()
+    inverted = quat_to_matrix(td[keys.QUATERNION])[:, 2, 2] < 0
+    moving = torch.cat((td[keys.LINEAR_VELOCITY], td[keys.ANGULAR_VELOCITY]), -1).abs().amax(-1)
+    still = moving == 0
+    assert not still[~inverted].any()  # right-way-up starts keep their drawn velocities
+    n = int(inverted.sum())
+    assert still[inverted].float().mean().item() == pytest.approx(0.4, abs=4 * math.sqrt(0.24 / n))
+    assert moving[inverted & ~still].min() > 0
+    with pytest.raises(ValueError, match="jd.inverted_at_rest"):
+        JumpingDistribution(2, inverted_share=0.5, inverted_at_rest=-0.1)
+
+
 def test_jd_schedule_and_bad_values():
     jd = JumpingDistribution(2, p0=0.8, decay_frames=100, schedule="cosine")
     assert jd.probability_at(0) == pytest.approx(0.8) and jd.probability_at(50) == pytest.approx(0.4)
