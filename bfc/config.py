@@ -95,7 +95,7 @@ class NoiseConfig:
 
 @dataclass
 class ModelConfig:
-    actor_hidden: list[int] = field(default_factory=lambda: [64, 64])  # the paper: [256, 256], 3x slower update
+    actor_hidden: list[int] = field(default_factory=lambda: [64, 64])  # robust extras: [128, 128]; paper: [256, 256]
     critic_hidden: list[int] = field(default_factory=lambda: [128, 128])
     activation: str = "relu"  # relu | tanh | elu; relu learns to fly in half the frames of tanh (docs/training.md)
     init_std: float = 0.2
@@ -127,7 +127,7 @@ class LossConfig:
     dtarg: float = 0.01
     entropy_coeff: float = 0.0
     critic_coeff: float = 0.5
-    epochs: int = 4  # 4 passes of 16 minibatches: as fast to fly as 5, a fifth less update time
+    epochs: int = 4  # 4 passes of 16 minibatches: as fast to fly as 5, a fifth less update time (robust extras: 3)
     num_minibatches: int = 16  # per epoch; the minibatch is frames_per_batch / num_minibatches frames (512)
     minibatch_size: int | None = None  # set: a fixed size in frames instead (overrides num_minibatches)
 

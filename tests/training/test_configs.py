@@ -55,8 +55,10 @@ def test_robust_extras_are_on_by_default_and_off_for_the_paper_variants():
     assert plain.env.randomize == schema.env.randomize and plain.jd == schema.jd and plain.optim == schema.optim
     assert robust.curriculum.frames > 0 and plain.curriculum == schema.curriculum and plain.curriculum.frames == 0
     assert robust.env.reward.angular_velocity < plain.env.reward.angular_velocity == schema.env.reward.angular_velocity
+    assert list(robust.model.actor_hidden) == [128, 128] and list(plain.model.actor_hidden) == [64, 64]
+    assert robust.loss.epochs == 3 and plain.loss == schema.loss
     changed = {k for k in robust if robust[k] != plain[k]}
-    assert changed == {"variant", "model", "env", "jd", "curriculum", "optim"}
+    assert changed == {"variant", "model", "env", "jd", "curriculum", "optim", "loss"}
     # an ablation variant can still take them on explicitly
     assert compose_cfg(["+ablation=jd", "extras=robust"]).model.position_integral
 
