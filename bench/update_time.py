@@ -1,7 +1,9 @@
 """Time of one PPO update (GAE + epochs x minibatches) on a batch collected by the default
 config's env, per network size, activation, torch thread count and loss path.
 
-    python bench/update_time.py [--threads 1 2] [--sizes 64,64 64,128] [--activations tanh relu]
+    python bench/update_time.py [--threads 1 2] [--sizes 64,64 64,128 128x3,128] [--activations tanh relu]
+
+A size is "actor,critic", each a width (two hidden layers) or WIDTHxDEPTH.
 
 "fused" is what training runs (`bfc.training.ppo.FusedClipLoss`: ClipPPOLoss's values in plain
 torch); "ClipPPOLoss" calls TorchRL's module on TensorDict minibatches, as before it. The rows
@@ -22,10 +24,16 @@ from bfc.training.ppo import PPO, make_models, ppo_update
 from bfc.transforms import PolicyObservation
 
 
+def layers(size: str) -> list[int]:
+    """Hidden layer widths: 128 -> [128, 128]; 128x3 -> [128, 128, 128]."""
+    width, _, depth = size.partition("x")
+    return [int(width)] * int(depth or 2)
+
+
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--threads", type=int, nargs="+", default=[1, 2])
-    p.add_argument("--sizes", nargs="+", default=["64,64", "64,128"], help="actor width,critic width")
+    p.add_argument("--sizes", nargs="+", default=["64,64", "64,128"], help="actor,critic (e.g. 128,128 or 128x3,128)")
     p.add_argument("--activations", nargs="+", default=["relu"])
     p.add_argument("--rounds", type=int, default=5)
     p.add_argument("overrides", nargs="*", help="train.py overrides, e.g. loss.num_minibatches=8")
@@ -39,12 +47,12 @@ def main() -> None:
         f"# batch {c.frames_per_batch} frames, {lo.epochs} epochs, minibatch {minibatch_size(cfg)};"
         f" medians of {args.rounds} rounds"
     )
-    print("| actor x2 | critic x2 | activation | torch threads | fused (s) | ClipPPOLoss (s) |")
+    print("| actor | critic | activation | torch threads | fused (s) | ClipPPOLoss (s) |")
     print("|---|---|---|---|---|---|")
     for size in args.sizes:
         for act in args.activations:
-            a, w = (int(v) for v in size.split(","))
-            cfg.model.activation, cfg.model.actor_hidden, cfg.model.critic_hidden = act, [a, a], [w, w]
+            a, w = size.split(",")
+            cfg.model.activation, cfg.model.actor_hidden, cfg.model.critic_hidden = act, layers(a), layers(w)
             actor, critic = make_models(cfg, obs.size, env.action_spec)
             with torch.no_grad():
                 data = env.rollout(steps, actor, break_when_any_done=False)

@@ -58,6 +58,7 @@ class JDConfig:
     angular_velocity_range: list[float] = field(default_factory=lambda: [0.0, 0.0])  # deg/s, per axis
     inverted_share: float = 0.0  # of the right-way-up air starts, turned upside down (x curriculum progress)
     inverted_at_rest: float = 0.0  # of those upside-down starts, released at rest (no velocity, no body rates)
+    inverted_spread: float = 1.0  # their roll, pitch x this before the turn (with the curriculum): < 1 nearer 180 deg
 
 
 @dataclass

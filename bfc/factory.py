@@ -124,6 +124,7 @@ def make_env(
                 angular_velocity_range=tuple(j.angular_velocity_range),
                 inverted_share=j.inverted_share,
                 inverted_at_rest=j.inverted_at_rest,
+                inverted_spread=j.inverted_spread,
             )
         )
     if samplers and cfg.css.enabled:

@@ -42,10 +42,12 @@ class JumpingDistribution(StartSampler):
         angular_velocity_range=(0.0, 0.0),
         inverted_share: float = 0.0,
         inverted_at_rest: float = 0.0,
+        inverted_spread: float = 1.0,
     ):
         super().__init__(num_envs)
         check(0.0 <= inverted_share <= 1.0, "jd.inverted_share", "in [0, 1]", inverted_share)
         check(0.0 <= inverted_at_rest <= 1.0, "jd.inverted_at_rest", "in [0, 1]", inverted_at_rest)
+        check(0.0 < inverted_spread <= 1.0, "jd.inverted_spread", "in (0, 1]", inverted_spread)
         check(0.0 <= p0 <= 1.0, "jd.p0", "in [0, 1]", p0)
         check(isinstance(decay_frames, int) and decay_frames >= 0, "jd.decay_frames", "an integer >= 0", decay_frames)
         check(schedule in SCHEDULES, "jd.schedule", f"one of {SCHEDULES}", schedule)
@@ -78,6 +80,10 @@ class JumpingDistribution(StartSampler):
         # Share of those upside-down starts released at rest (no velocity, no body rates): there
         # no initial spin says which way to turn over, the hardest flip (docs/training.md).
         self.inverted_at_rest = float(inverted_at_rest)
+        # Their drawn roll and pitch are scaled by this before the turn (from 1 to it with the
+        # curriculum's progress), so they land nearer 180 deg (0.5: tilted at least about 120 deg),
+        # where the any-attitude failures are; no extra draw.
+        self.inverted_spread = float(inverted_spread)
         self._widens = torch.tensor([0.0, 1, 1, 0, 1, 1, 1, 1, 1, 1])  # z, roll, pitch, yaw, v, w
         self.register_buffer("frames", torch.zeros((), dtype=torch.long))
         self.register_buffer("air_starts", torch.zeros((), dtype=torch.long))
@@ -109,7 +115,10 @@ class JumpingDistribution(StartSampler):
             upright = torch.cos(roll) * torch.cos(pitch) > 0
             flip = upright & (self.rand(self.num_envs) < share)
             # roll + pi negates cos(roll) cos(pitch), the body z axis's vertical component
-            drawn[:, 1] = torch.where(flip, torch.remainder(roll + 2 * math.pi, 2 * math.pi) - math.pi, roll)
+            k = 1 - (1 - self.inverted_spread) * self.inverted_scale  # narrows with the curriculum, too
+            drawn[:, 1] = torch.where(flip, torch.remainder(k * roll + 2 * math.pi, 2 * math.pi) - math.pi, roll)
+            if k < 1:
+                drawn[:, 2] = torch.where(flip, k * pitch, pitch)
             if self.inverted_at_rest > 0:  # again drawn only when asked
                 still = flip & (self.rand(self.num_envs) < self.inverted_at_rest)
                 drawn[:, 4:] = torch.where(still.unsqueeze(-1), 0.0, drawn[:, 4:])

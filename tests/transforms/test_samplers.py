@@ -100,6 +100,31 @@ def test_jd_inverted_at_rest_releases_that_share_of_upside_down_starts_still(cfg
         JumpingDistribution(2, inverted_share=0.5, inverted_at_rest=-0.1)
 
 
+def test_jd_inverted_spread_turns_upside_down_starts_nearer_180_deg(cfg):
+    cfg = only(cfg, n=2000, jd=True)
+    cfg.jd.roll_range, cfg.jd.pitch_range = [-60.0, 60.0], [-60.0, 60.0]  # every drawn start upright
+    cfg.jd.inverted_share = 0.5
+
+    def body_z(spread, scale=1.0):
+        cfg.jd.inverted_spread = spread
+        env = make_env(cfg, seed=0)
+        find_transform(env, JumpingDistribution).inverted_scale = scale
+        return quat_to_matrix(env.reset()[keys.QUATERNION])[:, 2, 2]
+
+    wide, near = body_z(1.0), body_z(0.5)
+    assert torch.equal(wide < 0, near < 0)  # the same starts are turned over: no extra random draw
+    assert torch.equal(wide[wide > 0], near[near > 0])  # and the right-way-up ones are untouched
+    # roll and pitch within +-30 deg of upside down: cos(roll) cos(pitch) <= -cos(30 deg)^2
+    assert near[near < 0].max() <= -0.75 + 1e-5 < wide[wide < 0].max()
+    assert (near[near < 0] < -0.9).float().mean() > (wide[wide < 0] < -0.9).float().mean() + 0.2
+    # halfway through the curriculum, halfway there: within +-45 deg, cos(45 deg)^2 = 0.5
+    half = body_z(0.5, scale=0.5)
+    assert -0.75 < half[half < 0].max() <= -0.5 + 1e-5
+    for bad in (0.0, 1.5):
+        with pytest.raises(ValueError, match="jd.inverted_spread"):
+            JumpingDistribution(2, inverted_share=0.5, inverted_spread=bad)
+
+
 def test_jd_schedule_and_bad_values():
     jd = JumpingDistribution(2, p0=0.8, decay_frames=100, schedule="cosine")
     assert jd.probability_at(0) == pytest.approx(0.8) and jd.probability_at(50) == pytest.approx(0.4)
