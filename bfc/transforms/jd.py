@@ -114,11 +114,11 @@ class JumpingDistribution(StartSampler):
             roll, pitch = drawn[:, 1], drawn[:, 2]
             upright = torch.cos(roll) * torch.cos(pitch) > 0
             flip = upright & (self.rand(self.num_envs) < share)
-            # roll + pi negates cos(roll) cos(pitch), the body z axis's vertical component
+            # roll + pi negates cos(roll) cos(pitch), the body z axis's vertical component; roll and
+            # pitch times k first turn the start nearer 180 deg (k = 1: as drawn, bit for bit)
             k = 1 - (1 - self.inverted_spread) * self.inverted_scale  # narrows with the curriculum, too
             drawn[:, 1] = torch.where(flip, torch.remainder(k * roll + 2 * math.pi, 2 * math.pi) - math.pi, roll)
-            if k < 1:
-                drawn[:, 2] = torch.where(flip, k * pitch, pitch)
+            drawn[:, 2] = torch.where(flip, k * pitch, pitch)
             if self.inverted_at_rest > 0:  # again drawn only when asked
                 still = flip & (self.rand(self.num_envs) < self.inverted_at_rest)
                 drawn[:, 4:] = torch.where(still.unsqueeze(-1), 0.0, drawn[:, 4:])
