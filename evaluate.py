@@ -6,8 +6,8 @@
     python evaluate.py suite=paper policy=pretrained/policy.pt [runs=multirun/<date>/<time>]
     python evaluate.py suite=robust policy=pretrained/policy.pt baselines=[lee,lee_i,mpc]
 
-The protocol's keys are the training config's `eval` section (eval.seed=0: the test starts that
-the docs report; training chooses policy.pt on eval.seed=1). A single evaluation writes
+The protocol's keys are `eval.*` (eval.seed=0: the test starts that the docs report; training
+chooses policy.pt on its own eval.validation_seed=1 starts). A single evaluation writes
 results.json (success count and rate, per-start outcome and time to success, errors after
 success) and figures; suite=paper writes report.md, suite=robust robust.md (start sets harsh, any,
 ground and model mismatch and wind, bfc.evaluation.suites) with robust.png and robust.json.
@@ -23,7 +23,8 @@ import hydra
 from hydra.core.hydra_config import HydraConfig
 from omegaconf import OmegaConf
 
-from bfc.config import SUITES, EvaluateConfig, check_keys, check_protocol
+from bfc.cli import fail, precheck
+from bfc.config import EVALUATION_SUITES, EvaluateConfig, check_keys, check_protocol
 from bfc.evaluation import CONTROLLERS, fly, protocol_starts
 from bfc.evaluation.metrics import summarize
 
@@ -47,8 +48,8 @@ def check(cfg) -> None:
         if unused:
             raise ValueError(f"{', '.join(unused)} only apply with suite=paper; a single evaluation does not use them")
         return
-    if cfg.suite not in SUITES:
-        raise ValueError(f"suite must be one of {', '.join(SUITES)}, got {cfg.suite!r}")
+    if cfg.suite not in EVALUATION_SUITES:
+        raise ValueError(f"suite must be one of {', '.join(EVALUATION_SUITES)}, got {cfg.suite!r}")
     s = cfg.suite
     if cfg.policy is not None and cfg.controller is not None:
         raise ValueError(f"suite={s} flies one policy= or controller= (the baselines go in baselines=[...])")
@@ -93,8 +94,7 @@ def main(cfg) -> None:
         )
         wall = time.perf_counter() - t0
     except (ValueError, FileNotFoundError) as err:
-        print(f"error: {err}", file=sys.stderr)
-        sys.exit(2)
+        fail(err)
     results = {
         "controller": str(controller),
         "noise": OmegaConf.to_container(cfg.noise),
@@ -153,4 +153,5 @@ def run_robust(cfg, out: Path) -> None:
 
 
 if __name__ == "__main__":
+    precheck("evaluate")
     main()

@@ -11,14 +11,14 @@ Bad input (an unknown key, a value out of range, a run directory with nothing to
 with a one-line `error: ...` on stderr and exit status 2.
 """
 
-import sys
 from pathlib import Path
 
 import hydra
 from hydra.core.hydra_config import HydraConfig
 from omegaconf import OmegaConf
 
-from bfc.config import validate  # importing bfc.config registers the schema Hydra composes with
+from bfc.cli import fail, precheck
+from bfc.config import check_keys, validate  # importing bfc.config registers the schema Hydra composes with
 from bfc.training import train
 
 
@@ -30,8 +30,10 @@ def resume_config(cfg):
     if not (run_dir / "config.yaml").is_file():
         raise FileNotFoundError(f"resume={cfg.resume}: no config.yaml there (not a bfc run directory)")
     saved = OmegaConf.load(run_dir / "config.yaml")
-    if "action_map" not in saved.get("model", {}):  # runs started before the thrust map existed
-        saved.model.action_map = "speed"
+    try:
+        check_keys(saved)
+    except ValueError as err:
+        raise ValueError(f"resume={cfg.resume}: its config.yaml is from another bfc version ({err})") from None
     return OmegaConf.merge(cfg, saved, {"resume": str(run_dir)}), run_dir
 
 
@@ -45,8 +47,7 @@ def main(cfg) -> float:
         validate(cfg)
         summary = train(cfg, run_dir)
     except (ValueError, FileNotFoundError) as err:
-        print(f"error: {err}", file=sys.stderr)
-        sys.exit(2)
+        fail(err)
     print(f"run directory: {run_dir}")
     print(
         f"frames {summary['frames']}, wall-clock {summary['wall_seconds']} s, "
@@ -56,4 +57,5 @@ def main(cfg) -> float:
 
 
 if __name__ == "__main__":
+    precheck("config")
     main()

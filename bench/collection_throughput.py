@@ -9,7 +9,7 @@ transform stack: TDTS, JD, CSS, observation, action map, episode statistics) and
 policy (or `--policy`'s weights), as `train.py` does, every path from the same collector
 state, with one torch thread (MuJoCo's rollout threads own the cores):
 - "bfc": what training runs (the fused partial reset `BFCEnv.maybe_reset`, the plain-torch
-  sampling actor `bfc.policy.SamplingActor`);
+  sampling actor `bfc.agent.SamplingActor`);
 - "TorchRL reset": TorchRL's generic `maybe_reset` instead of the fused one;
 - "TorchRL reset and actor": also the ProbabilisticActor itself (the code before both levers).
 All three produce the same batches bit for bit (tests/training/test_hot_path.py).
@@ -31,8 +31,8 @@ import mujoco
 import torch
 from env_throughput import hover_rate  # bench/ is the script's directory
 
+from bfc.agent import read_policy
 from bfc.config import compose
-from bfc.policy import read_policy_file
 from bfc.training.runner import Runner
 
 VARIANTS = {
@@ -116,7 +116,7 @@ def main() -> None:
     cfg = compose(["logger.tensorboard=false", "logger.progress=false", *args.overrides])
     runner = Runner(cfg, tempfile.mkdtemp())
     if args.policy:  # a trained policy flies long episodes, as mid-training collection does
-        runner.actor.module[0].module.load_state_dict(read_policy_file(args.policy)["state_dict"])
+        runner.net.load_state_dict(read_policy(args.policy).state_dict)
     base = runner.env.base_env
     next(iter(runner.collector))  # warm-up
     start = runner.collector.state_dict()

@@ -18,7 +18,7 @@ from pathlib import Path
 
 import torch
 
-from bfc.config import ProtocolConfig
+from bfc.config import TestProtocolConfig
 from bfc.controllers import LeeController, LeeGains, LinearMPC, MPCParams
 from bfc.envs import AirframeParams
 from bfc.evaluation.flights import PROTOCOL_HZ
@@ -49,7 +49,7 @@ def main() -> None:
     print(
         "\n".join(
             line
-            for line in controller_sections(controllers, out, ProtocolConfig(num_starts=args.starts))
+            for line in controller_sections(controllers, out, TestProtocolConfig(num_starts=args.starts))
             if not line.startswith("![")
         )
     )

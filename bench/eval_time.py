@@ -24,11 +24,11 @@ import torch
 from env_throughput import hover_rate  # bench/ is the script's directory
 from omegaconf import OmegaConf
 
+from bfc.agent import load_policy
 from bfc.config import compose
 from bfc.envs import REFERENCE_PHYSICS_DT
 from bfc.evaluation.evaluator import ProtocolEvaluator
 from bfc.factory import make_base_env
-from bfc.policy import load_policy
 
 
 def main() -> None:
@@ -37,17 +37,18 @@ def main() -> None:
     p.add_argument("--rounds", type=int, default=5)
     args = p.parse_args()
     torch.set_num_threads(1)
-    actor, payload = load_policy(args.policy)
-    hz = payload["env"]["control_hz"]
-    model = payload["observation"]
+    spec, actor = load_policy(args.policy)
+    hz = spec.control_hz
     cfg = compose(
         [
             f"env.control_hz={hz}",
-            "eval.seed=0",  # the test starts
-            f"model.position_integral={model.get('position_integral', False)}",
-            f"model.include_acceleration={model['include_acceleration']}",
-            f"model.observation={model.get('kind', 'heading')}",
-            f"model.action_map={payload['model'].get('action_map', 'speed')}",
+            "eval.validation_seed=0",  # the test starts
+            f"model.position_integral={spec.position_integral}",
+            f"model.include_acceleration={spec.include_acceleration}",
+            f"model.observation={spec.observation}",
+            f"model.action_map={spec.action_map}",
+            f"model.actor_hidden=[{','.join(map(str, spec.hidden))}]",
+            f"model.activation={spec.activation}",
         ]
     )
     reference = OmegaConf.merge(cfg, {"eval": {"physics_dt": REFERENCE_PHYSICS_DT}})

@@ -18,30 +18,30 @@ from contextlib import contextmanager
 
 import torch
 
+from bfc.agent import GaussianActor
 from bfc.evaluation import fly, success
 from bfc.evaluation.report import start_tilt_degrees
 from bfc.evaluation.suites import any_starts
-from bfc.policy import GaussianHead
 
 
 @contextmanager
 def sampled_actions(seed: int | None):
-    """Within it, every GaussianHead's mean is a draw from its Gaussian (what training flies)."""
+    """Within it, every GaussianActor's mean is a draw from its Gaussian (what training flies)."""
     if seed is None:
         yield
         return
-    mean = GaussianHead.forward
+    mean = GaussianActor.forward
 
     def draw(self, obs):
         loc, scale = mean(self, obs)
         return loc + scale * torch.randn_like(loc), scale
 
     torch.manual_seed(seed)
-    GaussianHead.forward = draw
+    GaussianActor.forward = draw
     try:
         yield
     finally:
-        GaussianHead.forward = mean
+        GaussianActor.forward = mean
 
 
 def main() -> None:

@@ -18,7 +18,7 @@ import platform
 import time
 from pathlib import Path
 
-from bfc.evaluation.suites import SUITES, robust_results
+from bfc.evaluation.suites import CONDITIONS, robust_results
 
 NOMINAL = ("protocol", "harsh", "any", "ground")
 # suite -> minimum success rate (issue 12); hover-error bounds in metres
@@ -51,7 +51,7 @@ def main() -> None:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("runs", nargs="*", type=Path, help="train.py run directories")
     p.add_argument("--policy", nargs="*", default=[], help="extra policy files")
-    p.add_argument("--suites", nargs="*", default=list(SUITES), help=f"default: all of {', '.join(SUITES)}")
+    p.add_argument("--suites", nargs="*", default=list(CONDITIONS), help=f"default: all of {', '.join(CONDITIONS)}")
     p.add_argument("--num-starts", type=int, default=100)
     p.add_argument("--json", type=Path, help="also write the results here")
     args = p.parse_args()
@@ -78,7 +78,7 @@ def main() -> None:
     for run in args.runs:
         print(f"{run.name}: last three in-training evaluations {last_evaluations(run)}")
     for label in labels:
-        missed = targets_met(results, label) if set(args.suites) == set(SUITES) else ["(not every suite flown)"]
+        missed = targets_met(results, label) if set(args.suites) == set(CONDITIONS) else ["(not every suite flown)"]
         print(f"{label}: " + ("every target met" if not missed else "misses " + "; ".join(missed)))
     if args.json:
         args.json.write_text(json.dumps(results, indent=1))

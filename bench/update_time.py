@@ -18,10 +18,10 @@ import time
 
 import torch
 
+from bfc.agent import PolicySpec, make_critic, torchrl_actor
 from bfc.config import compose, minibatch_size
-from bfc.factory import find_transform, make_env
-from bfc.training.ppo import PPO, make_models, ppo_update
-from bfc.transforms import PolicyObservation
+from bfc.factory import make_env
+from bfc.training.ppo import PPO, ppo_update
 
 
 def layers(size: str) -> list[int]:
@@ -40,7 +40,6 @@ def main() -> None:
     args = p.parse_args()
     cfg = compose(list(args.overrides))
     env = make_env(cfg, seed=0)
-    obs = find_transform(env, PolicyObservation)
     steps = cfg.collector.frames_per_batch // cfg.env.num_envs
     c, lo = cfg.collector, cfg.loss
     print(
@@ -53,7 +52,9 @@ def main() -> None:
         for act in args.activations:
             a, w = size.split(",")
             cfg.model.activation, cfg.model.actor_hidden, cfg.model.critic_hidden = act, layers(a), layers(w)
-            actor, critic = make_models(cfg, obs.size, env.action_spec)
+            spec = PolicySpec.from_config(cfg)
+            actor = torchrl_actor(spec.make_net(), env.action_spec)
+            critic = make_critic(spec.observation_size, cfg.model.critic_hidden, act)
             with torch.no_grad():
                 data = env.rollout(steps, actor, break_when_any_done=False)
             learner = PPO(cfg, actor, critic)

@@ -4,9 +4,14 @@ Importing this module registers the schemas with Hydra's ConfigStore (`base_conf
 conf/config.yaml, `base_evaluate` for conf/evaluate.yaml), so `compose(overrides)` works from a
 notebook as `python train.py ...` does from the shell. The composed config is closed: a key the
 schema does not define is an error whether or not it came with `+` (`check_keys`).
-The env's own parameter dataclasses are reused as schema, so each default lives in one place.
-Values are validated where they are used (the env and transform constructors name the key);
-`validate(cfg)` also checks the training-level values before anything starts.
+The schema's defaults are what `python train.py` runs (the full BFC plus bfc's robust extras);
+`extras=none` (conf/extras/none.yaml, which every paper variant uses) lists what the paper's
+variants run instead. The env's own parameter dataclasses are reused as schema (their fields and
+checks); where the default run differs from the env's own defaults (the reward's body-rate weight,
+the randomisation), the schema says so. Values are validated where they are used (the env and
+transform constructors name the key); `validate(cfg)` checks the training-level values and
+`check_overrides` the command line before anything starts. A key that moved (`MOVED`) fails in
+its old spelling with one line naming the new one.
 """
 
 from __future__ import annotations
@@ -18,12 +23,16 @@ from typing import Any
 from hydra.core.config_store import ConfigStore
 from omegaconf import DictConfig, OmegaConf
 
+from bfc.checks import check
 from bfc.envs import AirframeParams, RandomizeParams, RewardParams, StartParams, TerminationParams
 
 CONF_DIR = Path(__file__).resolve().parents[1] / "conf"  # the repository's Hydra configs
 
 ABLATIONS = ("ppo", "jd", "css", "tdts", "jd_css", "jd_tdts", "css_tdts", "jd_css_tdts")
-ALGORITHMS = ("ppo", "trpo", "ddpg")  # conf/algo/; bfc.training.ppo.make_learner builds each
+ALGORITHMS = ("ppo", "trpo", "ddpg")  # conf/algo/; bfc.training.learners.make_learner builds each
+EVALUATION_SUITES = ("paper", "robust")  # evaluate.py suite=...
+COLLECTORS = ("fused", "torchrl")
+CRITIC_LOSSES = ("l2", "l1", "smooth_l1")  # TorchRL's loss_critic_type
 
 
 @dataclass
@@ -38,27 +47,37 @@ class EnvConfig:
     start_motors: str = "rest"
     num_threads: int | None = None  # MuJoCo rollout threads; None = all cores
     airframe: AirframeParams = field(default_factory=AirframeParams)
-    reward: RewardParams = field(default_factory=RewardParams)
+    # a fifth of the env's body-rate penalty: fast flips recover from upside down (extras=none: 0.005)
+    reward: RewardParams = field(default_factory=lambda: RewardParams(angular_velocity=0.001))
+    # a new airframe and wind every episode, as multipliers of the nominal airframe (extras=none: off)
+    randomize: RandomizeParams = field(
+        default_factory=lambda: RandomizeParams(
+            external_force=1.0, mass=(0.7, 1.3), inertia=(1.0, 1.5), motor_constant=(0.8, 1.2), motor_lag=(1.0, 3.0)
+        )
+    )
     termination: TerminationParams = field(default_factory=TerminationParams)
     start: StartParams = field(default_factory=StartParams)
-    randomize: RandomizeParams = field(default_factory=RandomizeParams)  # per-episode world randomisation
 
 
 @dataclass
 class JDConfig:
+    """In-air starts at any attitude, thrown and spinning, many upside down; p(t) falls from p0 to
+    p_end over decay_frames (extras=none: the paper's +-60 deg at rest, p falling to 0)."""
+
     enabled: bool = True
     p0: float = 1.0
-    decay_frames: int | None = None  # None: collector.total_frames, so p falls to 0 as training ends
+    p_end: float = 0.75  # p at decay_frames and after (the paper: 0)
+    decay_frames: int | None = None  # None: collector.total_frames, so p reaches p_end as training ends
     schedule: str = "linear"  # linear | cosine | constant
     z_range: list[float] = field(default_factory=lambda: [0.5, 3.0])
-    roll_range: list[float] = field(default_factory=lambda: [-60.0, 60.0])  # degrees
-    pitch_range: list[float] = field(default_factory=lambda: [-60.0, 60.0])
+    roll_range: list[float] = field(default_factory=lambda: [-180.0, 180.0])  # degrees (paper: +-60)
+    pitch_range: list[float] = field(default_factory=lambda: [-90.0, 90.0])  # (paper: +-60)
     yaw_range: list[float] = field(default_factory=lambda: [-180.0, 180.0])
-    velocity_range: list[float] = field(default_factory=lambda: [0.0, 0.0])  # m/s, per axis
-    angular_velocity_range: list[float] = field(default_factory=lambda: [0.0, 0.0])  # deg/s, per axis
-    inverted_share: float = 0.0  # of the right-way-up air starts, turned upside down (x curriculum progress)
+    velocity_range: list[float] = field(default_factory=lambda: [-1.0, 1.0])  # m/s, per axis (paper: 0)
+    angular_velocity_range: list[float] = field(default_factory=lambda: [-115.0, 115.0])  # deg/s, per axis
+    inverted_share: float = 0.6  # of the right-way-up air starts, turned upside down (x curriculum progress)
     inverted_at_rest: float = 0.0  # of those upside-down starts, released at rest (no velocity, no body rates)
-    inverted_spread: float = 1.0  # their roll, pitch x this before the turn (with the curriculum): < 1 nearer 180 deg
+    inverted_spread: float = 0.5  # their roll, pitch x this before the turn (with the curriculum): nearer 180 deg
 
 
 @dataclass
@@ -80,9 +99,10 @@ class TDTSConfig:
 @dataclass
 class CurriculumConfig:
     """Widen JD's attitude and velocity ranges and env.randomize from `start` (a fraction of
-    them) to all of them over the first `frames` frames (bfc/training/curriculum.py); 0: off."""
+    them) to all of them over the first `frames` frames (bfc/training/curriculum.py); 0: off
+    (extras=none)."""
 
-    frames: int = 0
+    frames: int = 2_000_000
     start: float = 0.33
 
 
@@ -96,14 +116,16 @@ class NoiseConfig:
 
 @dataclass
 class ModelConfig:
-    actor_hidden: list[int] = field(default_factory=lambda: [64, 64])  # robust extras: [128, 128]; paper: [256, 256]
+    """The policy (bfc.agent.PolicySpec reads these) and the critic."""
+
+    actor_hidden: list[int] = field(default_factory=lambda: [128, 128])  # extras=none: [64, 64]; paper: [256, 256]
     critic_hidden: list[int] = field(default_factory=lambda: [128, 128])
     activation: str = "relu"  # relu | tanh | elu; relu learns to fly in half the frames of tanh (docs/training.md)
     init_std: float = 0.2
     include_acceleration: bool = False
     # the integral of the position error as 3 more inputs: lets the policy remove a steady offset
-    # (mass, thrust, wind) as a PID's integral term does (bfc/transforms/observation.py)
-    position_integral: bool = False
+    # (mass, thrust, wind) as a PID's integral term does (bfc/transforms/observation.py; extras=none: off)
+    position_integral: bool = True
     observation: str = "heading"  # heading (22 numbers, bfc's) | odometry (18, the paper's; +preset=paper)
     squash: bool = False  # tanh on the actor's mean (algo=ddpg sets it: its actor climbs the critic's gradient)
     action_map: str = "thrust"  # thrust | speed: how the policy's [-1, 1] maps to motor speed (transforms/action.py)
@@ -117,10 +139,15 @@ class CollectorConfig:
     # (e.g. 0.99): for a flying policy rather than a fixed budget. null: run total_frames.
     stop_at_success: float | None = None
     stop_patience: int = 3
+    # fused: bfc's collector (the same batches as TorchRL's, bfc's transforms only); torchrl:
+    # TorchRL's Collector over the TransformedEnv (any transform stack). docs/training.md, "Collectors"
+    kind: str = "torchrl"
 
 
 @dataclass
 class LossConfig:
+    """PPO's section (algo=ppo): TorchRL's ClipPPOLoss or KLPENPPOLoss, GAE, epochs and minibatches."""
+
     kind: str = "clip"  # clip (ClipPPOLoss, eq. 11) | kl (KLPENPPOLoss, adaptive beta, eq. 12)
     gamma: float = 0.99  # a 1 s horizon at 100 Hz; use 0.996 (and lmbda 0.98) at 250 Hz
     lmbda: float = 0.95
@@ -128,38 +155,57 @@ class LossConfig:
     dtarg: float = 0.01
     entropy_coeff: float = 0.0
     critic_coeff: float = 0.5
-    epochs: int = 4  # 4 passes of 16 minibatches: as fast to fly as 5, a fifth less update time (robust extras: 3)
+    critic_loss: str = "l2"  # l2 | l1 | smooth_l1: TorchRL's loss_critic_type
+    epochs: int = 3  # 3 passes of 16 minibatches (extras=none: 4)
     num_minibatches: int = 16  # per epoch; the minibatch is frames_per_batch / num_minibatches frames (512)
     minibatch_size: int | None = None  # set: a fixed size in frames instead (overrides num_minibatches)
 
 
 @dataclass
-class AlgoConfig:
-    """The learning algorithm (config group `algo`: conf/algo/ppo.yaml, trpo.yaml, ddpg.yaml)."""
+class TRPOConfig:
+    """algo=trpo: one natural-gradient step per batch within a KL bound, then the critic fitted."""
 
-    name: str = "ppo"  # ppo (the paper's BFC) | trpo | ddpg (the paper's comparisons, figs. 5-7)
-    # trpo: the KL bound of each natural-gradient step, conjugate-gradient iterations, the Fisher
-    # damping, backtracking steps of the line search (halving the step each time)
-    max_kl: float = 0.01
-    cg_iterations: int = 10
-    damping: float = 0.1
-    line_search_steps: int = 10
-    # ddpg: replay buffer (transitions), minibatch, gradient steps per collected batch, Polyak
-    # tau of the target networks, learning rates, transitions stored before the first update
-    buffer_size: int = 1_000_000
-    batch_size: int = 256
-    updates_per_batch: int = 64
-    tau: float = 0.005
+    max_kl: float = 0.01  # the KL bound of each step
+    cg_iterations: int = 10  # conjugate-gradient iterations
+    damping: float = 0.1  # Fisher damping
+    line_search_steps: int = 10  # backtracking steps (halving the step each time)
+    gamma: float = 0.99  # GAE
+    lmbda: float = 0.95
+    critic_epochs: int = 4  # Adam passes of the critic over each batch (lr: optim.lr)
+    critic_minibatches: int = 16
+
+
+@dataclass
+class DDPGConfig:
+    """algo=ddpg: replayed transitions, target networks, a deterministic actor."""
+
+    buffer_size: int = 1_000_000  # transitions
+    batch_size: int = 256  # the minibatch
+    updates_per_batch: int = 64  # gradient steps per collected batch
+    tau: float = 0.005  # Polyak tau of the target networks
     actor_lr: float = 1e-4
     critic_lr: float = 1e-3
-    warmup_frames: int = 10_000
+    warmup_frames: int = 10_000  # transitions stored before the first update
+    gamma: float = 0.99  # TD(0) target
+
+
+@dataclass
+class AlgoConfig:
+    """The learning algorithm (config group `algo`: conf/algo/ppo.yaml, trpo.yaml, ddpg.yaml). Each
+    reads its own section: PPO `loss`, TRPO `algo.trpo`, DDPG `algo.ddpg` (and all of them `optim`)."""
+
+    name: str = "ppo"  # ppo (the paper's BFC) | trpo | ddpg (the paper's comparisons, figs. 5-7)
+    trpo: TRPOConfig = field(default_factory=TRPOConfig)
+    ddpg: DDPGConfig = field(default_factory=DDPGConfig)
 
 
 @dataclass
 class OptimConfig:
-    lr: float = 1e-3
+    lr: float = 1e-3  # PPO, and TRPO's critic (DDPG: algo.ddpg.actor_lr / critic_lr)
     max_grad_norm: float = 1.0
-    anneal_lr: bool = False
+    anneal_lr: bool = (
+        True  # linear decay to 0 at the last frame: the final policy is the settled one (extras=none: off)
+    )
 
 
 @dataclass
@@ -171,10 +217,9 @@ class LoggerConfig:
 
 @dataclass
 class ProtocolConfig:
-    """The paper's protocol: starts, flight length and the success rule (bfc.evaluation.judge)."""
+    """The paper's protocol: how many starts, the flight length and the success rule (bfc.evaluation.judge)."""
 
     num_starts: int = 100
-    seed: int = 0  # protocol_starts seed; 0 = the test starts that reports quote
     seconds: float = 10.0
     threshold: float = 0.10  # metres, per axis
     hold_seconds: float = 1.0
@@ -184,7 +229,7 @@ class ProtocolConfig:
 class EvalConfig(ProtocolConfig):
     """In-training evaluation: the protocol on validation starts (policy.pt is chosen on these)."""
 
-    seed: int = 1  # validation starts: not the test starts (seed 0) that evaluate.py and the docs report
+    validation_seed: int = 1  # protocol_starts seed: not the test starts (seed 0) that evaluate.py and the docs report
     interval_frames: int = 1_000_000  # after early_frames: a settled run needs few looks
     # denser evaluations early, when a run first flies (about 0.5M frames for the default): every
     # early_interval_frames until early_frames
@@ -204,8 +249,11 @@ class CheckpointConfig:
 
 @dataclass
 class Config:
+    """`python train.py` with no override runs exactly these defaults (conf/config.yaml adds
+    nothing to them); `extras=none` and every `+ablation=...` switch bfc's robust extras off."""
+
     seed: int = 0
-    variant: str = "jd_css_tdts"  # the ablation variant's name, set by conf/ablation/*.yaml (logging, run dirs)
+    variant: str = "jd_css_tdts_robust"  # the variant's name, set by conf/ablation/*.yaml (logging, run dirs)
     resume: str | None = None  # a run directory to continue
     torch_threads: int = 2  # for the PPO update; collection and update never overlap
     env: EnvConfig = field(default_factory=EnvConfig)
@@ -224,7 +272,9 @@ class Config:
     checkpoint: CheckpointConfig = field(default_factory=CheckpointConfig)
 
 
-SUITES = ("paper", "robust")
+@dataclass
+class TestProtocolConfig(ProtocolConfig):
+    seed: int = 0  # protocol_starts seed: 0 = the test starts that the docs report
 
 
 @dataclass
@@ -238,8 +288,22 @@ class EvaluateConfig:
     baselines: list[str] = field(default_factory=lambda: ["mpc", "lee"])  # suites: flown beside it
     figures: bool = True  # single evaluation: flight figures beside results.json
     goal: list[float] = field(default_factory=lambda: [0.0, 0.0, 1.5])  # single evaluation
-    eval: ProtocolConfig = field(default_factory=ProtocolConfig)
+    eval: TestProtocolConfig = field(default_factory=TestProtocolConfig)
     noise: NoiseConfig = field(default_factory=NoiseConfig)  # single evaluation: seen by the controller only
+
+
+# Keys that moved: the old spelling fails with one line naming the new one.
+MOVED = {
+    "config": {
+        "eval.seed": "eval.validation_seed",
+        **{f"algo.{k}": f"algo.trpo.{k}" for k in ("max_kl", "cg_iterations", "damping", "line_search_steps")},
+        **{
+            f"algo.{k}": f"algo.ddpg.{k}"
+            for k in ("buffer_size", "batch_size", "updates_per_batch", "tau", "actor_lr", "critic_lr", "warmup_frames")
+        },
+    },
+    "evaluate": {k: f"eval.{k}" for k in ("num_starts", "seed", "seconds", "threshold", "hold_seconds")},
+}
 
 
 def register() -> None:
@@ -252,7 +316,7 @@ def register() -> None:
 register()
 
 SCHEMAS = {"config": Config, "evaluate": EvaluateConfig}
-GROUPS = {"config": ("ablation",), "evaluate": ()}
+GROUPS = {"config": ("ablation", "preset"), "evaluate": ()}
 
 
 def compose(overrides=(), config_name: str = "config") -> DictConfig:
@@ -288,21 +352,60 @@ def _unknown(node, schema, prefix: str = ""):
 
 
 def check_keys(cfg, config_name: str = "config") -> None:
-    """Raise ValueError on the first key of `cfg` that the schema does not define (a typo, or a
-    `+key=value` that names nothing)."""
+    """Raise ValueError on the first key of `cfg` that the schema does not define (a typo, a
+    `+key=value` that names nothing, or a key that moved: the message names its new spelling)."""
     plain = OmegaConf.to_container(cfg, resolve=False) if OmegaConf.is_config(cfg) else dict(cfg)
     plain.pop("hydra", None)
     found = _unknown(plain, OmegaConf.structured(SCHEMAS[config_name]))
     if found:
-        key, where, allowed = found
-        groups = GROUPS[config_name]
-        hint = f"; config groups: {', '.join(f'+{g}=...' for g in groups)}" if groups and "." not in key else ""
-        raise ValueError(f"unknown config key {key!r}; {where} has: {', '.join(allowed)}{hint}")
+        raise ValueError(_unknown_message(*found, config_name))
 
 
-def _check(cond: bool, key: str, allowed: str, value) -> None:
-    if not cond:
-        raise ValueError(f"{key} must be {allowed}, got {value!r}")
+def _unknown_message(key: str, where: str, allowed, config_name: str) -> str:
+    moved = MOVED[config_name].get(key)
+    if moved:
+        return f"{key} has moved: it is {moved} now"
+    groups = GROUPS[config_name]
+    hint = f"; config groups: {', '.join(f'+{g}=...' for g in groups)}" if groups and "." not in key else ""
+    return f"unknown config key {key!r}; {where} has: {', '.join(allowed)}{hint}"
+
+
+def config_groups() -> dict[str, list[str]]:
+    """{group: [option, ...]} of the repository's Hydra config groups (conf/<group>/<option>.yaml)."""
+    return {d.name: sorted(f.stem for f in d.glob("*.yaml")) for d in sorted(CONF_DIR.iterdir()) if d.is_dir()}
+
+
+def check_overrides(overrides, config_name: str = "config") -> None:
+    """Check command-line overrides before Hydra sees them, so that a key that names nothing, a
+    moved key, an unknown group option or a syntax error is one line (ValueError) rather than
+    Hydra's multi-line report: every key must be in the schema, every group option in conf/.
+    Sweep values (`seed=0,1`) are checked option by option; `hydra.*` and `hydra/...` are Hydra's."""
+    from hydra.core.override_parser.overrides_parser import OverridesParser
+    from hydra.errors import OverrideParseException
+
+    try:
+        parsed = OverridesParser.create().parse_overrides(list(overrides))
+    except OverrideParseException as err:
+        raise ValueError(f"cannot parse the overrides: {str(err).splitlines()[0]}") from None
+    groups = config_groups() if config_name == "config" else {}
+    schema = OmegaConf.structured(SCHEMAS[config_name])
+    for o in parsed:
+        key = o.key_or_group
+        if key == "hydra" or key.startswith(("hydra.", "hydra/")):
+            continue
+        if key in groups:
+            options = list(o.sweep_string_iterator()) if o.is_sweep_override() else [o.get_value_element_as_str()]
+            bad = [v for v in options if v not in groups[key]]
+            if bad and not o.is_delete():
+                raise ValueError(f"{key}={bad[0]} is not a config of conf/{key}/; available: {', '.join(groups[key])}")
+            continue
+        node, parts = schema, key.split(".")
+        for i, part in enumerate(parts):
+            if not isinstance(node, DictConfig) or part not in node:
+                where = ".".join(parts[:i]) or "the top level"
+                allowed = list(node.keys()) if isinstance(node, DictConfig) else []
+                raise ValueError(_unknown_message(key, where, allowed, config_name))
+            node = node[part]
 
 
 def minibatch_size(cfg) -> int:
@@ -314,7 +417,7 @@ def minibatch_size(cfg) -> int:
 
 
 def jd_decay_frames(cfg) -> int:
-    """Frames over which JD's probability falls to 0: jd.decay_frames if set, else the run's length."""
+    """Frames over which JD's probability falls to jd.p_end: jd.decay_frames if set, else the run's length."""
     d = cfg.jd.decay_frames
     return int(cfg.collector.total_frames if d is None else d)
 
@@ -324,82 +427,93 @@ def validate(cfg) -> None:
     check_keys(cfg)
     c = cfg.collector
     num_envs = cfg.env.num_envs
-    _check(isinstance(num_envs, int) and num_envs >= 1, "env.num_envs", "an integer >= 1", num_envs)
-    _check(c.total_frames > 0, "collector.total_frames", "> 0", c.total_frames)
-    _check(c.frames_per_batch > 0, "collector.frames_per_batch", "> 0", c.frames_per_batch)
+    check(isinstance(num_envs, int) and num_envs >= 1, "env.num_envs", "an integer >= 1", num_envs)
+    check(c.total_frames > 0, "collector.total_frames", "> 0", c.total_frames)
+    check(c.frames_per_batch > 0, "collector.frames_per_batch", "> 0", c.frames_per_batch)
     if c.stop_at_success is not None:
-        _check(0 <= c.stop_at_success <= 1, "collector.stop_at_success", "null or in [0, 1]", c.stop_at_success)
-    _check(c.stop_patience >= 1, "collector.stop_patience", ">= 1", c.stop_patience)
-    _check(
+        check(0 <= c.stop_at_success <= 1, "collector.stop_at_success", "null or in [0, 1]", c.stop_at_success)
+    check(c.stop_patience >= 1, "collector.stop_patience", ">= 1", c.stop_patience)
+    check(
         c.frames_per_batch % cfg.env.num_envs == 0,
         "collector.frames_per_batch",
         f"a multiple of env.num_envs ({cfg.env.num_envs})",
         c.frames_per_batch,
     )
+    check(c.kind in COLLECTORS, "collector.kind", " or ".join(COLLECTORS), c.kind)
     lo = cfg.loss
-    _check(lo.kind in ("clip", "kl"), "loss.kind", "'clip' or 'kl'", lo.kind)
-    _check(0 < lo.gamma <= 1, "loss.gamma", "in (0, 1]", lo.gamma)
-    _check(0 <= lo.lmbda <= 1, "loss.lmbda", "in [0, 1]", lo.lmbda)
-    _check(lo.epochs >= 1, "loss.epochs", ">= 1", lo.epochs)
-    _check(
+    check(lo.kind in ("clip", "kl"), "loss.kind", "'clip' or 'kl'", lo.kind)
+    check(lo.critic_loss in CRITIC_LOSSES, "loss.critic_loss", ", ".join(CRITIC_LOSSES), lo.critic_loss)
+    check(0 < lo.gamma <= 1, "loss.gamma", "in (0, 1]", lo.gamma)
+    check(0 <= lo.lmbda <= 1, "loss.lmbda", "in [0, 1]", lo.lmbda)
+    check(lo.epochs >= 1, "loss.epochs", ">= 1", lo.epochs)
+    check(
         1 <= lo.num_minibatches <= c.frames_per_batch,
         "loss.num_minibatches",
         f"in [1, collector.frames_per_batch={c.frames_per_batch}]",
         lo.num_minibatches,
     )
     if lo.minibatch_size is not None:
-        _check(
+        check(
             0 < lo.minibatch_size <= c.frames_per_batch,
             "loss.minibatch_size",
             f"null or in [1, collector.frames_per_batch={c.frames_per_batch}]",
             lo.minibatch_size,
         )
-    _check(cfg.curriculum.frames >= 0, "curriculum.frames", ">= 0 (0: off)", cfg.curriculum.frames)
-    _check(0 <= cfg.curriculum.start <= 1, "curriculum.start", "in [0, 1]", cfg.curriculum.start)
+    check(cfg.curriculum.frames >= 0, "curriculum.frames", ">= 0 (0: off)", cfg.curriculum.frames)
+    check(0 <= cfg.curriculum.start <= 1, "curriculum.start", "in [0, 1]", cfg.curriculum.start)
     if cfg.jd.decay_frames is not None:
         d = cfg.jd.decay_frames
-        _check(d >= 0, "jd.decay_frames", "null (= collector.total_frames) or >= 0", d)
-    _check(cfg.optim.lr > 0, "optim.lr", "> 0", cfg.optim.lr)
+        check(d >= 0, "jd.decay_frames", "null (= collector.total_frames) or >= 0", d)
+    check(cfg.optim.lr > 0, "optim.lr", "> 0", cfg.optim.lr)
     a = cfg.algo
-    _check(a.name in ALGORITHMS, "algo.name", f"one of {', '.join(ALGORITHMS)} (conf/algo/)", a.name)
-    _check(a.max_kl > 0, "algo.max_kl", "> 0", a.max_kl)
-    _check(
-        a.cg_iterations >= 1 and a.line_search_steps >= 1,
-        "algo.cg_iterations and algo.line_search_steps",
-        ">= 1",
-        (a.cg_iterations, a.line_search_steps),
+    check(a.name in ALGORITHMS, "algo.name", f"one of {', '.join(ALGORITHMS)} (conf/algo/)", a.name)
+    t = a.trpo
+    check(t.max_kl > 0, "algo.trpo.max_kl", "> 0", t.max_kl)
+    check(t.cg_iterations >= 1, "algo.trpo.cg_iterations", ">= 1", t.cg_iterations)
+    check(t.line_search_steps >= 1, "algo.trpo.line_search_steps", ">= 1", t.line_search_steps)
+    check(t.damping >= 0, "algo.trpo.damping", ">= 0", t.damping)
+    check(0 < t.gamma <= 1, "algo.trpo.gamma", "in (0, 1]", t.gamma)
+    check(0 <= t.lmbda <= 1, "algo.trpo.lmbda", "in [0, 1]", t.lmbda)
+    check(t.critic_epochs >= 1, "algo.trpo.critic_epochs", ">= 1", t.critic_epochs)
+    check(
+        1 <= t.critic_minibatches <= c.frames_per_batch,
+        "algo.trpo.critic_minibatches",
+        f"in [1, collector.frames_per_batch={c.frames_per_batch}]",
+        t.critic_minibatches,
     )
-    _check(a.damping >= 0, "algo.damping", ">= 0", a.damping)
-    _check(
-        a.batch_size >= 1 and a.buffer_size >= a.batch_size,
-        "algo.batch_size",
-        f"in [1, algo.buffer_size={a.buffer_size}]",
-        a.batch_size,
+    d = a.ddpg
+    check(
+        d.batch_size >= 1 and d.buffer_size >= d.batch_size,
+        "algo.ddpg.batch_size",
+        f"in [1, algo.ddpg.buffer_size={d.buffer_size}]",
+        d.batch_size,
     )
-    _check(a.updates_per_batch >= 1, "algo.updates_per_batch", ">= 1", a.updates_per_batch)
-    _check(0 < a.tau <= 1, "algo.tau", "in (0, 1]", a.tau)
-    _check(a.actor_lr > 0 and a.critic_lr > 0, "algo.actor_lr and algo.critic_lr", "> 0", (a.actor_lr, a.critic_lr))
-    _check(a.warmup_frames >= 0, "algo.warmup_frames", ">= 0", a.warmup_frames)
-    _check(
+    check(d.updates_per_batch >= 1, "algo.ddpg.updates_per_batch", ">= 1", d.updates_per_batch)
+    check(0 < d.tau <= 1, "algo.ddpg.tau", "in (0, 1]", d.tau)
+    check(d.actor_lr > 0, "algo.ddpg.actor_lr", "> 0", d.actor_lr)
+    check(d.critic_lr > 0, "algo.ddpg.critic_lr", "> 0", d.critic_lr)
+    check(d.warmup_frames >= 0, "algo.ddpg.warmup_frames", ">= 0", d.warmup_frames)
+    check(0 < d.gamma <= 1, "algo.ddpg.gamma", "in (0, 1]", d.gamma)
+    check(
         cfg.model.activation in ("tanh", "relu", "elu"), "model.activation", "tanh, relu or elu", cfg.model.activation
     )
-    _check(cfg.model.init_std > 0, "model.init_std", "> 0", cfg.model.init_std)
-    _check(cfg.noise.kind in ("none", "gaussian", "ou"), "noise.kind", "none, gaussian or ou", cfg.noise.kind)
-    _check(cfg.eval.interval_frames > 0, "eval.interval_frames", "> 0", cfg.eval.interval_frames)
-    _check(cfg.eval.early_frames >= 0, "eval.early_frames", ">= 0 (0: off)", cfg.eval.early_frames)
-    _check(cfg.eval.early_interval_frames > 0, "eval.early_interval_frames", "> 0", cfg.eval.early_interval_frames)
+    check(cfg.model.init_std > 0, "model.init_std", "> 0", cfg.model.init_std)
+    check(cfg.noise.kind in ("none", "gaussian", "ou"), "noise.kind", "none, gaussian or ou", cfg.noise.kind)
+    check(cfg.eval.interval_frames > 0, "eval.interval_frames", "> 0", cfg.eval.interval_frames)
+    check(cfg.eval.early_frames >= 0, "eval.early_frames", ">= 0 (0: off)", cfg.eval.early_frames)
+    check(cfg.eval.early_interval_frames > 0, "eval.early_interval_frames", "> 0", cfg.eval.early_interval_frames)
     if cfg.eval.physics_dt is not None:
-        _check(cfg.eval.physics_dt > 0, "eval.physics_dt", "null (the training step) or > 0", cfg.eval.physics_dt)
+        check(cfg.eval.physics_dt > 0, "eval.physics_dt", "null (the training step) or > 0", cfg.eval.physics_dt)
     if cfg.env.physics_dt is not None:
-        _check(cfg.env.physics_dt > 0, "env.physics_dt", "null (one step per control step) or > 0", cfg.env.physics_dt)
+        check(cfg.env.physics_dt > 0, "env.physics_dt", "null (one step per control step) or > 0", cfg.env.physics_dt)
     check_protocol(cfg.eval)
-    _check(cfg.checkpoint.interval_frames > 0, "checkpoint.interval_frames", "> 0", cfg.checkpoint.interval_frames)
-    _check(cfg.torch_threads >= 1, "torch_threads", ">= 1", cfg.torch_threads)
+    check(cfg.checkpoint.interval_frames > 0, "checkpoint.interval_frames", "> 0", cfg.checkpoint.interval_frames)
+    check(cfg.torch_threads >= 1, "torch_threads", ">= 1", cfg.torch_threads)
 
 
 def check_protocol(p, section: str = "eval") -> None:
     """The protocol keys of `eval` (training) or evaluate.py's `eval` section."""
-    _check(p.num_starts >= 1, f"{section}.num_starts", ">= 1", p.num_starts)
-    _check(p.seconds > 0, f"{section}.seconds", "> 0", p.seconds)
-    _check(p.threshold > 0, f"{section}.threshold", "> 0 (metres)", p.threshold)
-    _check(0 < p.hold_seconds <= p.seconds, f"{section}.hold_seconds", f"in (0, {section}.seconds]", p.hold_seconds)
+    check(p.num_starts >= 1, f"{section}.num_starts", ">= 1", p.num_starts)
+    check(p.seconds > 0, f"{section}.seconds", "> 0", p.seconds)
+    check(p.threshold > 0, f"{section}.threshold", "> 0 (metres)", p.threshold)
+    check(0 < p.hold_seconds <= p.seconds, f"{section}.hold_seconds", f"in (0, {section}.seconds]", p.hold_seconds)

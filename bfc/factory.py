@@ -1,29 +1,33 @@
-"""make_env(cfg): the base env plus the transform stack the config asks for (`bfc.make_env`).
+"""make_env(cfg): the base env plus the transform stack the config asks for (`bfc.make_env`), and
+make_flight_env: the env a flight from given starts runs in (evaluation, training's validation).
 
 Train, evaluate, notebooks and tests all build envs here. Order matters and is fixed:
     TDTS (before CSS, whose episode bookkeeping must see TDTS's done) -> JD -> CSS -> given starts
     -> odometry noise -> policy observation -> motor-speed action -> episode statistics (training).
+The policy's observation and action maps come from a PolicySpec (bfc.agent): the config's in
+training, a policy file's in a flight.
 """
 
 from __future__ import annotations
 
 import zlib
 
+import torch
 from omegaconf import OmegaConf
 from tensordict import TensorDict, TensorDictBase
 from torchrl.envs import Compose, RewardSum, StepCounter, TransformedEnv
 
 from bfc import keys
+from bfc.agent import PolicySpec
+from bfc.checks import check
 from bfc.config import jd_decay_frames
-from bfc.envs import AirframeParams, QuadrotorEnv
+from bfc.envs import REFERENCE_PHYSICS_DT, QuadrotorEnv
 from bfc.transforms import (
     ControlledStartingState,
     GaussianOdometryNoise,
     GivenStarts,
     JumpingDistribution,
-    MotorSpeedAction,
     OUOdometryNoise,
-    PolicyObservation,
     TimeDependentTerminalState,
 )
 from bfc.transforms._base import BatchedTransform
@@ -88,12 +92,12 @@ def make_env(
     policy_io: bool = True,
     seed: int | None = None,
     airframe: dict | None = None,
-) -> TransformedEnv:
+) -> BFCEnv:
     """Build the env for `cfg`.
 
     samplers=False switches JD, CSS, TDTS, `env.randomize` and the episode statistics
-    (RewardSum, StepCounter) off whatever the config says (evaluation: the flown world is the
-    nominal one unless `airframe` says otherwise);
+    (RewardSum, StepCounter) off whatever the config says (the flown world is the nominal one
+    unless `airframe` says otherwise);
     noise overrides `cfg.noise`; given_starts adds a GivenStarts transform (`env.transform`
     member) through which a caller places envs at chosen starts on the next reset;
     policy_io=False leaves out the policy's observation and action maps, for controllers that
@@ -102,7 +106,6 @@ def make_env(
     observation and action maps keep the nominal airframe of `cfg.env.airframe`.
     """
     base = make_base_env(cfg, num_envs, airframe, randomize=samplers)
-    nominal = AirframeParams(**(_plain(cfg.env.airframe) or {}))
     n, dt = base.num_envs, base.dt
     ts = []
     if samplers and cfg.tdts.enabled:
@@ -114,6 +117,7 @@ def make_env(
             JumpingDistribution(
                 n,
                 p0=j.p0,
+                p_end=j.p_end,
                 decay_frames=jd_decay_frames(cfg),
                 schedule=j.schedule,
                 z_range=tuple(j.z_range),
@@ -134,26 +138,60 @@ def make_env(
                 n, grid=int(c.grid), xy_range=base.start_params.xy_range, temperature=c.temperature, uniform=c.uniform
             )
         )
+    policy = PolicySpec.from_config(cfg) if policy_io else None
+    noise = cfg.noise if noise is None else noise
+    return _assemble(base, ts, policy=policy, noise=noise, given_starts=given_starts, statistics=samplers, seed=seed)
+
+
+def make_flight_env(
+    num_envs: int,
+    *,
+    policy: PolicySpec | None = None,
+    control_hz: float | None = None,
+    physics_dt: float = REFERENCE_PHYSICS_DT,
+    seconds: float = 11.0,
+    airframe: dict | None = None,
+    noise=None,
+    num_threads: int | None = None,
+    seed: int | None = None,
+) -> BFCEnv:
+    """An env for flights from given starts (`GivenStarts`): no samplers, no randomisation, no
+    episode statistics, the task's termination, episodes of `seconds`.
+
+    policy: a PolicySpec, whose observation and action maps the env gets and whose control rate
+    and nominal airframe it flies (a policy file is always flown as it was trained); None: no
+    policy maps, at `control_hz` (controllers read `"odometry"` and command rad/s).
+    airframe: AirframeParams fields of the flown body that differ from the nominal one (model
+    mismatch); noise: a `noise` config section, corrupting only what the controller sees.
+    """
+    if policy is not None and control_hz is not None and float(control_hz) != policy.control_hz:
+        raise ValueError(f"this policy was trained at {policy.control_hz:g} Hz and is flown at that rate only")
+    rate = policy.control_hz if policy is not None else control_hz
+    check(rate is not None, "control_hz", "given for a flight without a policy", rate)
+    nominal = policy.airframe if policy is not None else {}
+    base = QuadrotorEnv(
+        int(num_envs),
+        control_hz=float(rate),
+        physics_dt=float(physics_dt),
+        episode_seconds=float(seconds),
+        airframe={**nominal, **dict(airframe or {})},
+        num_threads=num_threads,
+    )
+    return _assemble(base, [], policy=policy, noise=noise, given_starts=True, statistics=False, seed=seed)
+
+
+def _assemble(base: QuadrotorEnv, ts: list, *, policy, noise, given_starts, statistics, seed) -> BFCEnv:
+    """base env + the start samplers `ts` + given starts + noise + the policy's maps + statistics."""
+    n, dt = base.num_envs, base.dt
     if given_starts:
         ts.append(GivenStarts(n))
-    noise_t = make_noise(cfg.noise if noise is None else noise, n, dt)
+    noise_t = make_noise(noise, n, dt)
     if noise_t is not None:
         ts.append(noise_t)
-    if policy_io:
-        action = MotorSpeedAction(nominal.hover_speed, nominal.max_rotor_speed, cfg.model.action_map)
-        ts.append(
-            PolicyObservation(
-                n,
-                nominal.hover_speed,
-                include_acceleration=cfg.model.include_acceleration,
-                command_to_action=action.to_action,
-                position_integral=cfg.model.position_integral,
-                dt=dt,
-                kind=cfg.model.observation,
-            )
-        )
-        ts.append(action)
-    if samplers:  # episode statistics for training's logs; flights judge whole trajectories instead
+    if policy is not None:
+        ts.append(policy.make_observation_map(n, dt))
+        ts.append(policy.make_action_map())
+    if statistics:  # episode statistics for training's logs; flights judge whole trajectories instead
         ts.append(RewardSum())
         ts.append(StepCounter())
     env = BFCEnv(base, Compose(*ts))
@@ -192,24 +230,40 @@ class BFCEnv(TransformedEnv):
 
     fused_reset = True  # False: TorchRL's generic maybe_reset (the reference the fused one is tested against)
 
+    def reset_envs(self, done: torch.Tensor, start_state: torch.Tensor | None = None) -> TensorDictBase:
+        """Reset the envs in `done` (N,) or (N, 1) bool, at `start_state` (N, 12) where it is not
+        NaN: the samplers' `_reset_env_preprocess` last to first, the base env's `_reset`, every
+        transform's `_reset`, in TorchRL's order. The reset outputs of every env (valid for `done`)."""
+        request = TensorDict({keys.RESET: done.reshape(self.batch_size + (1,)).clone()}, batch_size=self.batch_size)
+        if start_state is not None:
+            request.set(keys.START_STATE, start_state)
+        request = self.transform._reset_env_preprocess(request)
+        return self.transform._reset(request, self.base_env._reset(request))
+
+    def _reset(self, tensordict: TensorDictBase | None = None, **kwargs) -> TensorDictBase:
+        # TorchRL's TransformedEnv._reset keeps only the reset and state keys of its input, so a
+        # "start_state" given to reset() would be dropped silently: it is an input here.
+        start = None if tensordict is None else tensordict.get(keys.START_STATE, None)
+        if start is None:
+            return super()._reset(tensordict, **kwargs)
+        done = tensordict.get(keys.RESET, None)
+        done = torch.ones(self.batch_size + (1,), dtype=torch.bool) if done is None else done
+        return self.reset_envs(done, start)
+
     def maybe_reset(self, tensordict: TensorDictBase) -> TensorDictBase:
         """TorchRL's partial reset of the envs that are done, without its generic plumbing.
 
-        Nearly every collection step resets a few of the 256 envs, and TorchRL's path (mark
+        Nearly every collection step resets a few of the envs, and TorchRL's path (mark
         `"_reset"`, select, check, merge) costs more than the transforms' own work. This one runs
-        the same calls in the same order (samplers' `_reset_env_preprocess` last to first, the base
-        env's `_reset`, every transform's `_reset`, then the masked merge TorchRL does), so the
-        result is the same bit for bit (tests/training/test_hot_path.py), in less time (2.7
-        against 3.0 ms a reset step at 256 envs, measured in isolation).
+        the same calls in the same order (`reset_envs`, then the masked merge TorchRL does), so
+        the result is the same bit for bit (tests/training/test_hot_path.py).
         """
         done = tensordict.get(keys.DONE, None)
         if not self.fused_reset or done is None:
             return super().maybe_reset(tensordict)
         if not bool(done.any()):
             return tensordict
-        request = TensorDict({keys.RESET: done.clone()}, batch_size=self.batch_size)
-        request = self.transform._reset_env_preprocess(request)
-        fresh = self.transform._reset(request, self.base_env._reset(request))
+        fresh = self.reset_envs(done)
         if bool(done.all()):  # TorchRL updates rather than merges: entries only in `tensordict` stay
             return tensordict.update(fresh, update_batch_size=True)
         keep = ~done.reshape(self.batch_size)

@@ -1,14 +1,15 @@
 import os
 
 import pytest
-from omegaconf import OmegaConf
 
 os.environ.setdefault("RL_WARNINGS", "False")
 
 
 @pytest.fixture
 def cfg():
-    """The default config (as Hydra would compose it without overrides)."""
-    from bfc.config import Config
+    """The paper's BFC (`extras=none`: no randomisation, no integral, the paper's JD starts), as
+    Hydra composes it: the plain world most unit tests reason about. `python train.py`'s own
+    default (the robust extras on) is `bfc.config.compose([])`."""
+    from bfc.config import compose
 
-    return OmegaConf.structured(Config)
+    return compose(["extras=none"])

@@ -39,7 +39,7 @@ def test_make_env_and_fly_are_functions_in_any_import_order():
         cfg.env.num_envs = 2
         for _ in range(3):
             env = bfc.make_env(cfg, seed=0)
-            assert env.reset()["observation"].shape == (2, 22)
+            assert env.reset()["observation"].shape == (2, 25)  # the default: 22 + the position integral
             env.close()
         import bfc.evaluation.flights
         from bfc.evaluation import fly, protocol_starts
@@ -122,15 +122,17 @@ def test_jd_decay_follows_the_run_length_unless_set():
     from bfc.factory import find_transform, make_env
     from bfc.transforms import JumpingDistribution
 
-    # the schema's null follows the run (the paper's variants); the robust extras pin 32M (p -> 0.75 over 8M)
+    # null follows the run: p falls to jd.p_end (0.75 by default, 0 in the paper's variants) as it ends
     cases = (
-        (["extras=none", "collector.total_frames=3000000"], 3_000_000),
-        (["extras=none", "jd.decay_frames=5"], 5),
-        (["collector.total_frames=3000000"], 32_000_000),
+        (["extras=none", "collector.total_frames=3000000"], 3_000_000, 0.0),
+        (["extras=none", "jd.decay_frames=6"], 6, 0.0),
+        (["collector.total_frames=3000000"], 3_000_000, 0.75),
     )
-    for overrides, expected in cases:
+    for overrides, expected, p_end in cases:
         env = make_env(compose([*overrides, "env.num_envs=2"]))
-        assert find_transform(env, JumpingDistribution).decay_frames == expected
+        jd = find_transform(env, JumpingDistribution)
+        assert jd.decay_frames == expected and jd.probability_at(expected) == p_end
+        assert jd.probability_at(expected // 2) == pytest.approx((1 + p_end) / 2)
         env.close()
 
 

@@ -8,15 +8,13 @@ import numpy as np
 import pytest
 import torch
 from tensordict import TensorDict
-from torchrl.envs.utils import ExplorationType, set_exploration_type
 
 ort = pytest.importorskip("onnxruntime")
 pytest.importorskip("onnx")
 
+from bfc.agent import POLICY_FORMAT, PolicySpec, load_policy, save_policy  # noqa: E402
 from bfc.envs.params import AirframeParams  # noqa: E402
-from bfc.export import OnnxController, main, policy_settings, read_metadata  # noqa: E402
-from bfc.policy import export_onnx, load_policy, make_actor, save_policy  # noqa: E402
-from bfc.transforms import MotorSpeedAction, PolicyObservation  # noqa: E402
+from bfc.export import OnnxController, export_onnx, main, read_metadata  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 PRETRAINED = ROOT / "pretrained" / "policy.pt"
@@ -26,23 +24,20 @@ TOLERANCE = 1e-5
 
 def tiny_policy(path, action_map="speed"):
     """A random 2x16 ELU policy with accelerations in its observation, on a heavier airframe."""
-    torch.manual_seed(0)
-    actor = make_actor(28, [16, 16], "elu", 0.2)
-    with torch.no_grad():  # undo the near-zero last layer, so the outputs spread over the action range
-        for p in actor.module[0].module.mean.parameters():
-            p.normal_(0.0, 0.2)
-    airframe = {"body_mass": 0.8, "max_rotor_speed": 900.0}
-    model = {"actor_hidden": [16, 16], "critic_hidden": [8], "activation": "elu", "init_std": 0.2}
-    if action_map is not None:
-        model["action_map"] = action_map
-    save_policy(
-        path,
-        actor,
-        model={**model, "include_acceleration": True},
-        env={"control_hz": 250.0, "airframe": airframe},
-        observation={"size": 28, "include_acceleration": True},
-        info={},
+    spec = PolicySpec(
+        include_acceleration=True,
+        action_map=action_map,
+        hidden=(16, 16),
+        activation="elu",
+        control_hz=250.0,
+        airframe={"body_mass": 0.8, "max_rotor_speed": 900.0},
     )
+    torch.manual_seed(0)
+    net = spec.make_net()
+    with torch.no_grad():  # undo the near-zero last layer, so the outputs spread over the action range
+        for p in net.mlp.parameters():
+            p.normal_(0.0, 0.2)
+    save_policy(path, spec, net)
     return path
 
 
@@ -73,42 +68,32 @@ def random_inputs(n, hover, max_speed, seed=0, spread=1.0):
 def torch_reference(policy_path, odometry, goal, previous, integral=None):
     """What the env + the deterministic torch actor command: PolicyObservation.integrate and
     .build, the actor's mean, MotorSpeedAction.to_command, the env's clip to [0, max]."""
-    actor, payload = load_policy(policy_path)
-    s = policy_settings(payload)
-    action = MotorSpeedAction(s["hover_speed"], s["max_rotor_speed"], s["action_map"])
-    observation = PolicyObservation(
-        len(odometry),
-        s["hover_speed"],
-        include_acceleration=s["include_acceleration"],
-        command_to_action=action.to_action,
-        position_integral=s["position_integral"],
-        dt=1.0 / s["control_hz"],
-        kind=s["observation"],
-    )
-    if s["position_integral"]:
+    spec, net = load_policy(policy_path)
+    action, observation = spec.make_action_map(), spec.make_observation_map(len(odometry))
+    if spec.position_integral:
         integral = observation.integrate(integral, odometry, goal)
     obs = observation.build(odometry, goal, action.to_action(previous).clamp(-1, 1), integral)
-    with torch.no_grad(), set_exploration_type(ExplorationType.DETERMINISTIC):
-        mean = actor(TensorDict({"observation": obs}, batch_size=[len(obs)])).get("action")
-    return action.to_command(mean).clamp(0.0, s["max_rotor_speed"]), s
+    with torch.no_grad():
+        mean = net.mean(obs)
+    return action.to_command(mean).clamp(0.0, action.max_speed), spec
 
 
 @pytest.mark.parametrize("name", ["pretrained", "tiny"])
 def test_onnx_matches_the_torch_policy(models, name):
     policy_path, onnx_path = models[name]
-    _, payload = load_policy(policy_path)
-    s = policy_settings(payload)
+    spec, _ = load_policy(policy_path)
+    hover, top = spec.nominal_airframe.hover_speed, spec.nominal_airframe.max_rotor_speed
     # 1000 rows over the protocol's states and far beyond, and 1000 near hover at the goal (where
     # a trained policy's commands are mostly inside its range)
-    wide = random_inputs(1000, s["hover_speed"], s["max_rotor_speed"])
-    near = random_inputs(1000, s["hover_speed"], s["max_rotor_speed"], seed=3, spread=0.1)
+    wide = random_inputs(1000, hover, top)
+    near = random_inputs(1000, hover, top, seed=3, spread=0.1)
     odometry, goal, previous = (torch.cat(pair) for pair in zip(wide, near, strict=True))
     integral = 0.5 * (2 * torch.rand(2000, 3, generator=torch.Generator().manual_seed(2)) - 1)
-    expected, s = torch_reference(policy_path, odometry, goal, previous, integral)
+    expected, _ = torch_reference(policy_path, odometry, goal, previous, integral)
     session = ort.InferenceSession(str(onnx_path), providers=["CPUExecutionProvider"])
     inputs, outputs = ["odometry", "goal", "previous_motor_speeds"], ["motor_speeds"]
     feeds = {"odometry": odometry.numpy(), "goal": goal.numpy(), "previous_motor_speeds": previous.numpy()}
-    if s["position_integral"]:
+    if spec.position_integral:
         inputs.append("position_error_integral")
         outputs.append("next_position_error_integral")
         feeds["position_error_integral"] = integral.numpy()
@@ -116,15 +101,15 @@ def test_onnx_matches_the_torch_policy(models, name):
     assert [o.name for o in session.get_outputs()] == outputs
     got = session.run(None, feeds)[0]
     assert got.shape == (2000, 4) and got.dtype == np.float32
-    diff = np.abs(got - expected.numpy()).max() / s["hover_speed"]
+    diff = np.abs(got - expected.numpy()).max() / hover
     assert diff <= TOLERANCE, f"max |onnx - torch| = {diff:.2e} hover speeds"
     # the comparison is not all saturated motors: most commands lie strictly inside (0, max)
-    inside = (expected > 0) & (expected < s["max_rotor_speed"])
+    inside = (expected > 0) & (expected < top)
     assert inside.float().mean() > 0.5
-    assert got.min() >= 0.0 and got.max() <= s["max_rotor_speed"]
+    assert got.min() >= 0.0 and got.max() <= top
     # dynamic batch: one row gives the same numbers
     one = session.run(None, {k: v[:1] for k, v in feeds.items()})[0]
-    np.testing.assert_allclose(one, got[:1], rtol=0, atol=TOLERANCE * s["hover_speed"])
+    np.testing.assert_allclose(one, got[:1], rtol=0, atol=TOLERANCE * hover)
 
 
 def test_metadata_records_how_to_fly(models, tmp_path):
@@ -132,15 +117,12 @@ def test_metadata_records_how_to_fly(models, tmp_path):
     assert meta["control_hz"] == 100.0 and meta["action_map"] == "thrust"
     assert meta["position_integral"] and meta["observation"] == "heading"  # the default since the robust extras
     assert meta["hover_speed"] == pytest.approx(AirframeParams().hover_speed)
-    assert meta["max_rotor_speed"] == 838.0 and meta["policy_format"] == "bfc-policy-v1"
+    assert meta["max_rotor_speed"] == 838.0 and meta["policy_format"] == POLICY_FORMAT
     meta = read_metadata(models["tiny"][1])
     assert meta["control_hz"] == 250.0 and meta["action_map"] == "speed" and meta["include_acceleration"]
     assert not meta["position_integral"]
     assert meta["hover_speed"] == pytest.approx(AirframeParams(body_mass=0.8).hover_speed)
     assert meta["max_rotor_speed"] == 900.0
-    # files written before `action_map` existed were trained with the speed map
-    legacy = export_onnx(tiny_policy(tmp_path / "old.pt", action_map=None), tmp_path / "old.onnx")
-    assert read_metadata(legacy)["action_map"] == "speed"
 
 
 def test_controller_feeds_back_its_command_and_resets(models):
@@ -210,29 +192,14 @@ def test_integral_policy_exports_its_state_and_flies_as_the_env_does(tmp_path):
     ONNX controller, feeding it back, flies the same flight as the torch policy in the env."""
     from bfc.evaluation import fly
 
+    spec = PolicySpec(position_integral=True, hidden=(16,), activation="tanh", control_hz=100.0)
     torch.manual_seed(1)
-    actor = make_actor(25, [16], "tanh", 0.2)
+    net = spec.make_net()
     with torch.no_grad():
-        for p in actor.module[0].module.mean.parameters():
+        for p in net.mlp.parameters():
             p.normal_(0.0, 0.1)
-        last = actor.module[0].module.mean[-1]
-        last.weight[:, 22:25].normal_(0.0, 2.0)  # the integral inputs matter
-    save_policy(
-        tmp_path / "integral.pt",
-        actor,
-        model={
-            "actor_hidden": [16],
-            "critic_hidden": [8],
-            "activation": "tanh",
-            "init_std": 0.2,
-            "action_map": "thrust",
-            "include_acceleration": False,
-            "position_integral": True,
-        },
-        env={"control_hz": 100.0},
-        observation={"size": 25, "include_acceleration": False, "position_integral": True},
-        info={},
-    )
+        net.mlp[-1].weight[:, 22:25].normal_(0.0, 2.0)  # the integral inputs matter
+    save_policy(tmp_path / "integral.pt", spec, net)
     onnx_path = export_onnx(tmp_path / "integral.pt", tmp_path / "integral.onnx")
     session = ort.InferenceSession(str(onnx_path), providers=["CPUExecutionProvider"])
     assert [i.name for i in session.get_inputs()] == [
@@ -250,6 +217,6 @@ def test_integral_policy_exports_its_state_and_flies_as_the_env_does(tmp_path):
     by_torch = fly(str(tmp_path / "integral.pt"), starts, seconds=0.3)
     by_onnx = fly(controller, starts, seconds=0.3, control_hz=100.0)
     torch.testing.assert_close(
-        by_onnx.get("action"), by_torch.get("action"), rtol=0, atol=1e-3 * controller.hover_speed
+        by_onnx.get("action"), by_torch.get("action"), rtol=0, atol=1e-5 * controller.hover_speed
     )
     assert controller.integral.shape == (8, 3) and np.abs(controller.integral).max() > 1e-3

@@ -1,4 +1,4 @@
-"""The TorchRL Collector over the batched env, and per-batch episode statistics."""
+"""TorchRL's Collector over the batched env, resumable, and per-batch episode statistics."""
 
 from __future__ import annotations
 
@@ -6,8 +6,7 @@ from tensordict import TensorDictBase
 from torchrl.collectors import Collector
 
 from bfc import keys
-
-_ACTOR_PREFIX = "module.0.module."  # a ProbabilisticActor's GaussianHead weights in its state dict
+from bfc.torchrl_compat import collector_carrier, load_collector_carrier
 
 
 class ResumableCollector(Collector):
@@ -16,25 +15,18 @@ class ResumableCollector(Collector):
     TorchRL's own state dict holds the transforms' state, the policy and the frame counter; a run
     that must resume bit-identically after a kill also needs the base env (physics, motors,
     generators: `BFCEnv.state_dict`) and the in-flight tensordict the next step starts from
-    (current observations, episode sums and step counts), which TorchRL keeps as `_carrier`.
+    (current observations, episode sums and step counts; bfc.torchrl_compat).
     """
 
     def state_dict(self):
         sd = super().state_dict()
         sd["env_state_dict"] = self.env.state_dict()
-        sd["carrier"] = self._carrier.to_dict()
+        sd["carrier"] = collector_carrier(self).to_dict()
         return sd
 
     def load_state_dict(self, state_dict, **kwargs) -> None:
-        policy = state_dict.get("policy_state_dict")
-        if policy is not None and any(k.startswith(_ACTOR_PREFIX) for k in policy):
-            # a checkpoint whose collector held the ProbabilisticActor itself: the same weights
-            # under the actor's names (bfc.policy.SamplingActor keeps its GaussianHead as `head`)
-            policy = {k.replace(_ACTOR_PREFIX, "head.", 1): v for k, v in policy.items()}
-            state_dict = {**state_dict, "policy_state_dict": policy}
         super().load_state_dict(state_dict, **kwargs)
-        carrier = self._carrier
-        carrier.update(type(carrier).from_dict(state_dict["carrier"], batch_size=carrier.batch_size))
+        load_collector_carrier(self, state_dict["carrier"])
 
 
 def make_collector(env, policy, frames_per_batch: int, total_frames: int) -> ResumableCollector:

@@ -1,6 +1,7 @@
 """AscTec Hummingbird parameters as in RotorS (rotors_description/urdf/hummingbird.xacro).
 
-One dataclass so that config can override any of them (domain randomisation later).
+One dataclass, so a config can override any of them (`env.airframe.*`); the per-episode
+randomisation of some of them is `RandomizeParams` in bfc/envs/quadrotor.py.
 """
 
 from __future__ import annotations
@@ -59,7 +60,8 @@ class AirframeParams:
         return math.sqrt(self.total_mass * self.gravity / (4 * self.motor_constant))
 
 
-# Rotor layout, motor order of SPEC.md: 0 front (+x) CW, 1 left (+y) CCW, 2 back (-x) CW, 3 right (-y) CCW.
+# Rotor layout and motor order (the order of every motor-speed vector in bfc):
+# 0 front (+x) CW, 1 left (+y) CCW, 2 back (-x) CW, 3 right (-y) CCW.
 ROTOR_DIRECTIONS = ((1.0, 0.0), (0.0, 1.0), (-1.0, 0.0), (0.0, -1.0))
 # Reaction torque about +z per newton of thrust, in units of moment_constant: a CW rotor (seen
 # from above) pushes the body counter-clockwise (+z), a CCW rotor clockwise (-z).

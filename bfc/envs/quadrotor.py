@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import math
 import os
-from dataclasses import asdict, dataclass, fields
+from dataclasses import dataclass, fields
 from importlib import resources
 
 import mujoco
@@ -30,6 +30,7 @@ from torchrl.data import Bounded, Categorical, Composite, Unbounded
 from torchrl.envs import EnvBase
 
 from bfc import keys
+from bfc.checks import check as _check
 from bfc.envs.params import ROTOR_DIRECTIONS, ROTOR_YAW_SIGNS, AirframeParams
 from bfc.envs.rotations import euler_to_quat
 
@@ -39,10 +40,16 @@ REFERENCE_PHYSICS_DT = 0.002  # s: the simulator every evaluation flies (trainin
 HULL_HALF_SIZE = (0.2, 0.2, 0.04)  # collision box of the asset (m); its bottom is 0.04 m below the centre
 GROUND_HEIGHT = HULL_HALF_SIZE[2]  # centre height of a level drone resting on the floor
 
-
-def _check(cond: bool, key: str, allowed: str, value) -> None:
-    if not cond:
-        raise ValueError(f"{key} must be {allowed}, got {value!r}")
+# Layout of the one float32 buffer (N, 30) a step writes (`QuadrotorEnv.advance`); every output
+# key is a view into it (`QuadrotorEnv.pack`).
+FLAT_SIZE = 30
+FLAT_ODOMETRY, FLAT_QUATERNION, FLAT_MOTORS, FLAT_GOAL, FLAT_REWARD = (
+    slice(0, 18),
+    slice(18, 22),
+    slice(22, 26),
+    slice(26, 29),
+    slice(29, 30),
+)
 
 
 @dataclass
@@ -274,7 +281,7 @@ class QuadrotorEnv(EnvBase):
         self._ctrl = torch.zeros(n, substeps, self.model.nu, dtype=f64)
         self._ctrl_np = self._ctrl.numpy()
         self._external = torch.zeros(n, 3, dtype=f64)  # the external force as set (N, world frame)
-        self._obs_np = np.zeros((n, 30))  # staging buffer for the outputs (see _observe)
+        self._obs_np = np.zeros((n, FLAT_SIZE))  # staging buffer for the outputs (see observe)
         self._motor = torch.zeros(n, 4, dtype=f64)
         self._motor_np = self._motor.numpy()
         self._lin_acc = torch.zeros(n, 3, dtype=f64)
@@ -299,7 +306,7 @@ class QuadrotorEnv(EnvBase):
         self._decay_step = (np.empty((n, 1)), np.empty((n, 1)))
         self._apply_airframe_scale(np.ones(n, dtype=bool))
         # the rotor layout as wrench rows: torque x = L sum dy_i T_i, torque y = -L sum dx_i T_i,
-        # torque z = moment_constant sum sign_i T_i (motor order of SPEC.md)
+        # torque z = moment_constant sum sign_i T_i (motor order of bfc.envs.params.ROTOR_DIRECTIONS)
         a = self.airframe
         self._torque_rows = np.array(
             [
@@ -477,10 +484,11 @@ class QuadrotorEnv(EnvBase):
                 raise ValueError(f"start_state must have shape ({n}, 12), got {tuple(given.shape)}")
             given = given.to(torch.float64)
             start = torch.where(torch.isnan(given), start, given)
-        self._place(start, mask)
-        return self._observe(self._physics, reward=None, terminated=None, truncated=None)
+        self.place(start, mask)
+        none = torch.zeros(n, dtype=torch.bool)
+        return self.pack(self.observe(), none, none.clone(), reward=False)
 
-    def _place(self, start: torch.Tensor, mask: torch.Tensor) -> None:
+    def place(self, start: torch.Tensor, mask: torch.Tensor) -> None:
         """Write starts (N, 12) into the envs selected by the boolean `mask` (N,).
 
         Motors start at rest, or with `start_motors="hover"` at hover speed when the start is in
@@ -514,15 +522,22 @@ class QuadrotorEnv(EnvBase):
         self._write_external(m)
 
     def _step(self, tensordict: TensorDictBase) -> TensorDictBase:
-        action = tensordict.get(keys.ACTION)
-        if action.shape != (self.num_envs, 4):
+        return self.pack(*self.advance(tensordict.get(keys.ACTION)))
+
+    def advance(self, command: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """One control step of every env under motor speed commands (N, 4) in rad/s:
+        (outputs (N, 30) float32 in the FLAT_* layout, terminated (N,), truncated (N,)).
+
+        What `step()` runs, without a TensorDict around it (bfc's own fused collector and flight
+        loop call it directly; `pack` turns its outputs into the env's keys)."""
+        if command.shape != (self.num_envs, 4):
             raise ValueError(
-                f"action must have shape ({self.num_envs}, 4) (motor speeds in rad/s), got {tuple(action.shape)}"
+                f"action must have shape ({self.num_envs}, 4) (motor speeds in rad/s), got {tuple(command.shape)}"
             )
         # The hot path is NumPy float64 on views of the state tensors, one (N,) column at a time:
         # MuJoCo integrates in float64 anyway, and a reduction over a short last axis (`.sum(-1)`)
         # costs as much as fifteen column operations.
-        cmd = action.detach().numpy().astype(np.float64)
+        cmd = command.detach().numpy().astype(np.float64)
         if not np.isfinite(cmd).all():
             bad = np.flatnonzero(~np.isfinite(cmd).all(-1))[:8].tolist()
             raise ValueError(
@@ -564,7 +579,7 @@ class QuadrotorEnv(EnvBase):
         if not np.isfinite(new).all() or late.any():
             failed = ~np.isfinite(new).all(-1) | late
             self.physics_failures += int(failed.sum())
-            self._place(self.sample_default_starts(), torch.from_numpy(failed))
+            self.place(self.sample_default_starts(), torch.from_numpy(failed))
         self._lin_acc_np[:] = (new[:, _LINVEL] - old[:, _LINVEL]) / self.dt
         self._ang_acc_np[:] = (new[:, _ANGVEL] - old[:, _ANGVEL]) / self.dt
         if failed is not None:
@@ -576,7 +591,7 @@ class QuadrotorEnv(EnvBase):
         if failed is not None:
             crashed |= failed
         truncated = (self._steps_np >= self.max_episode_steps) & ~crashed
-        return self._observe(new, reward, torch.from_numpy(crashed), torch.from_numpy(truncated))
+        return self.observe(reward), torch.from_numpy(crashed), torch.from_numpy(truncated)
 
     def _integrate(self) -> None:
         self._rollout.rollout(
@@ -619,10 +634,10 @@ class QuadrotorEnv(EnvBase):
         r = np.where(crashed, r - rp.crash_penalty, r) * rp.scale
         return r, crashed
 
-    def _observe(self, phys, reward, terminated, truncated) -> TensorDictBase:
-        """Pack every output into one float32 buffer (new each step); entries are views into it."""
-        n, buf = self.num_envs, self._obs_np
-        p = phys.numpy() if isinstance(phys, torch.Tensor) else phys
+    def observe(self, reward: np.ndarray | None = None) -> torch.Tensor:
+        """Every output of the current state in one new float32 buffer (N, 30), FLAT_* layout
+        (odometry, quaternion, motor speeds, goal; the step's reward, 0 after a reset)."""
+        buf, p = self._obs_np, self._physics_np
         w, x, y, z = p[:, _QUAT].T
         buf[:, 0:3] = p[:, _POS]
         buf[:, 3:6] = p[:, _LINVEL]
@@ -635,45 +650,31 @@ class QuadrotorEnv(EnvBase):
         buf[:, 18:22] = p[:, _QUAT]
         buf[:, 22:26] = self._motor_np
         buf[:, 26:29] = self._goal.numpy()
-        if reward is None:
-            terminated = truncated = torch.zeros(n, dtype=torch.bool)
-            buf[:, 29] = 0.0
-        else:
-            buf[:, 29] = reward
-        flat = torch.from_numpy(buf.astype(np.float32))
+        buf[:, 29] = 0.0 if reward is None else reward
+        return torch.from_numpy(buf.astype(np.float32))
+
+    def pack(self, flat: torch.Tensor, terminated, truncated, reward: bool = True) -> TensorDictBase:
+        """The env's keys as views into `flat` (N, 30) (or (..., N, 30): a stack of steps)."""
         out = {
-            keys.ODOMETRY: flat[:, 0:18],
-            keys.GOAL: flat[:, 26:29],
+            keys.ODOMETRY: flat[..., FLAT_ODOMETRY],
+            keys.GOAL: flat[..., FLAT_GOAL],
             keys.STATE: {
-                "position": flat[:, 0:3],
-                "quaternion": flat[:, 18:22],
-                "linear_velocity": flat[:, 3:6],
-                "angular_velocity": flat[:, 12:15],
-                "motor_speeds": flat[:, 22:26],
+                "position": flat[..., 0:3],
+                "quaternion": flat[..., FLAT_QUATERNION],
+                "linear_velocity": flat[..., 3:6],
+                "angular_velocity": flat[..., 12:15],
+                "motor_speeds": flat[..., FLAT_MOTORS],
             },
             keys.TERMINATED: terminated.unsqueeze(-1),
             keys.TRUNCATED: truncated.unsqueeze(-1),
             keys.DONE: (terminated | truncated).unsqueeze(-1),
         }
-        if reward is not None:
-            out[keys.REWARD] = flat[:, 29:30]
-        return TensorDict(out, batch_size=self.batch_size, device=self.device)
+        if reward:
+            out[keys.REWARD] = flat[..., FLAT_REWARD]
+        return TensorDict(out, batch_size=flat.shape[:-1], device=self.device)
 
     def close(self, *, raise_if_closed: bool = True) -> None:
         if self._rollout is not None:
             self._rollout.close()
             self._rollout = None
         super().close(raise_if_closed=raise_if_closed)
-
-    def config(self) -> dict:
-        """The physical set-up, for logging beside results."""
-        return {
-            "control_hz": self.control_hz,
-            "physics_dt": self.physics_dt,
-            "max_episode_steps": self.max_episode_steps,
-            "airframe": asdict(self.airframe),
-            "reward": asdict(self.reward_params),
-            "termination": asdict(self.termination),
-            "start": asdict(self.start_params),
-            "randomize": asdict(self.randomize),
-        }

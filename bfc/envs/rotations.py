@@ -47,8 +47,3 @@ def quat_to_matrix(q: torch.Tensor) -> torch.Tensor:
         ),
         -1,
     ).reshape(*q.shape[:-1], 3, 3)
-
-
-def rotate_to_body(q: torch.Tensor, v: torch.Tensor) -> torch.Tensor:
-    """Express world vectors v (..., 3) in the body frame of orientation q."""
-    return (quat_to_matrix(q).transpose(-1, -2) @ v.unsqueeze(-1)).squeeze(-1)

@@ -5,7 +5,8 @@ which flies its evaluations through `run_flights`, never loads OSQP or SciPy.
 """
 
 from bfc.evaluation.evaluator import ProtocolEvaluator
-from bfc.evaluation.flights import fly, run_flights
+from bfc.evaluation.flights import run_flights
+from bfc.evaluation.flying import fly
 from bfc.evaluation.judge import Verdict, inside_box, judge, success, success_and_time, time_to_success
 from bfc.evaluation.protocol import TEST_SEED, VALIDATION_SEED, protocol_starts
 

@@ -1,4 +1,12 @@
-"""Per-flight outcomes and error statistics of a batch of flights (the protocol's report)."""
+"""Per-flight outcomes and error statistics of a batch of flights, one definition each:
+
+- hover error: a flight's mean distance to the goal over its last 2 s (`hover_errors`); a set of
+  flights reports the median over its successful flights (`hover_error`). Training's
+  `eval/hover_error`, the robustness tables and bench/ all use it.
+- hover tilt: the same for the tilt (`hover_tilt`; training's `eval/attitude_error`).
+- position / attitude error after success: every step from the one the drone entered the box
+  for its successful hold to the end of the flight (`summarize`: the protocol report).
+"""
 
 from __future__ import annotations
 
@@ -19,16 +27,35 @@ def tilt_degrees(quaternion: torch.Tensor) -> torch.Tensor:
 STEADY_SECONDS = 2.0  # hover errors are taken over the last 2 s of a flight
 
 
-def tail_distance(trajectory: TensorDict, seconds: float = STEADY_SECONDS) -> torch.Tensor:
-    """(n, k) distance to the goal at each of the last `seconds` of every flight (m)."""
+def _tail(trajectory: TensorDict, seconds: float) -> slice:
     dt = float(trajectory.get("time")[0, 0])
-    tail = slice(-max(1, round(seconds / dt)), None)
-    return (trajectory.get(keys.POSITION) - trajectory.get(keys.GOAL))[:, tail].norm(dim=-1)
+    return slice(-max(1, round(seconds / dt)), None)
+
+
+def hover_errors(trajectory: TensorDict, seconds: float = STEADY_SECONDS) -> torch.Tensor:
+    """(n,) each flight's mean distance to the goal over its last `seconds` (m)."""
+    tail = _tail(trajectory, seconds)
+    return (trajectory.get(keys.POSITION) - trajectory.get(keys.GOAL))[:, tail].norm(dim=-1).mean(-1)
+
+
+def hover_error(trajectory: TensorDict, success: torch.Tensor) -> float | None:
+    """The median over the successful flights of `hover_errors` (m); None when none succeeded."""
+    if not bool(success.any()):
+        return None
+    return hover_errors(trajectory)[success].median().item()
+
+
+def hover_tilt(trajectory: TensorDict, success: torch.Tensor) -> float | None:
+    """The median over the successful flights of the mean tilt over the last 2 s (deg)."""
+    if not bool(success.any()):
+        return None
+    tilt = tilt_degrees(trajectory.get(keys.QUATERNION)[:, _tail(trajectory, STEADY_SECONDS)]).mean(-1)
+    return tilt[success].median().item()
 
 
 def summarize(trajectory: TensorDict, threshold: float = 0.10, hold_seconds: float = 1.0) -> dict:
-    """Success count and rate, per-start outcome and time to success, and the mean and 95th
-    percentile of position and attitude error over the flight after success."""
+    """Success count and rate, per-start outcome and time to success, the hover error, and the mean
+    and 95th percentile of position and attitude error over the flight after success."""
     ok, t_success, _ = judge(trajectory, threshold, hold_seconds)
     pos_err = (trajectory.get(keys.POSITION) - trajectory.get(keys.GOAL)).norm(dim=-1)
     att_err = tilt_degrees(trajectory.get(keys.QUATERNION))  # the task is yaw-free: heading is no error
@@ -50,6 +77,7 @@ def summarize(trajectory: TensorDict, threshold: float = 0.10, hold_seconds: flo
         "success_rate": ok.float().mean().item(),
         "crashes": int(crashed.sum()),
         "time_to_success_median": t_success[ok].median().item() if bool(ok.any()) else None,
+        "hover_error_m": hover_error(trajectory, ok),
         "position_error_after_success_m": stats(pos_err),
         "attitude_error_after_success_deg": stats(att_err),
         "per_start": [

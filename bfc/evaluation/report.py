@@ -17,9 +17,9 @@ from pathlib import Path
 import torch
 from tensordict import TensorDict
 
-from bfc.config import ProtocolConfig
+from bfc.config import TestProtocolConfig
 from bfc.envs.rotations import euler_to_quat
-from bfc.evaluation.flights import fly
+from bfc.evaluation.flying import fly
 from bfc.evaluation.metrics import summarize, tilt_degrees
 from bfc.evaluation.plots import flight_figures, plot_flights, subplots
 from bfc.evaluation.protocol import protocol_starts
@@ -53,7 +53,7 @@ def _fmt(v, digits=3):
     return "n/a" if v is None else f"{v:.{digits}f}"
 
 
-def policy_sections(controller, out: Path, protocol: ProtocolConfig) -> tuple[list[str], TensorDict]:
+def policy_sections(controller, out: Path, protocol: TestProtocolConfig) -> tuple[list[str], TensorDict]:
     """The protocol, accuracy, noise and waypoint sections, and the protocol flights (reused by the
     controller comparison)."""
     p = protocol
@@ -133,7 +133,9 @@ def start_tilt_degrees(starts: torch.Tensor) -> torch.Tensor:
     return tilt_degrees(euler_to_quat(starts[:, 3:6].double()))
 
 
-def controller_sections(controllers: dict, out: Path, protocol: ProtocolConfig, flown: dict | None = None) -> list[str]:
+def controller_sections(
+    controllers: dict, out: Path, protocol: TestProtocolConfig, flown: dict | None = None
+) -> list[str]:
     """BFC against the classical baselines on the same starts (paper figs. 19-21): success, success
     by initial tilt, time to success, errors after success and compute time per control step."""
     p = protocol
@@ -273,7 +275,7 @@ def read_runs(runs_dir: Path) -> dict[str, list[dict]]:
     return {label: sorted(by_variant[label], key=lambda r: r["seed"]) for label in sorted(by_variant, key=order)}
 
 
-def fly_final_policies(by_variant: dict, protocol: ProtocolConfig) -> None:
+def fly_final_policies(by_variant: dict, protocol: TestProtocolConfig) -> None:
     """Each run's `policy_last.pt` (the final policy: never chosen on any starts) on the test
     starts of every set in TABLE2_STARTS: run["test"] = {set: success rate}."""
     from bfc.evaluation.suites import START_SETS, score
@@ -305,7 +307,7 @@ def _first_reached(run: dict) -> str:
     return "never" if reach is None else f"{reach['frames'] / 1e6:.1f}M"
 
 
-def table2(by_variant: dict, protocol: ProtocolConfig) -> list[str]:
+def table2(by_variant: dict, protocol: TestProtocolConfig) -> list[str]:
     """Table 2: the final policies on the test starts (mean, spread and seeds), the validation
     evaluations the runs made, and when each seed first reached the paper's 0.905."""
     sets = [TABLE2_STARTS[name] for name in TABLE2_STARTS]
@@ -328,16 +330,17 @@ def table2(by_variant: dict, protocol: ProtocolConfig) -> list[str]:
         f"Success in percent: mean +- sample standard deviation over seeds (each seed's value in brackets, seed "
         "order; n/a: a run without a `policy_last.pt` or without evaluations). "
         f"The final policy (`policy_last.pt`) of each run flies {p.num_starts} test starts (seed {p.seed}) of each set "
-        f"for {p.seconds:g} s; the validation columns are the runs' own in-training evaluations (`eval.seed` starts).",
+        f"for {p.seconds:g} s; the validation columns are the runs' own in-training evaluations "
+        "(`eval.validation_seed` starts).",
     ]
     return lines
 
 
-def runs_sections(runs_dir: Path, out: Path, protocol: ProtocolConfig | None = None) -> list[str]:
+def runs_sections(runs_dir: Path, out: Path, protocol: TestProtocolConfig | None = None) -> list[str]:
     """Table 2 and the learning curves (figs. 8-10) of every run (`summary.json`) below `runs_dir`:
     the final policies flown on the test starts, the evaluations from the summaries, the episode
     returns from the TensorBoard events. Per-run figures go to `out`/table2.json."""
-    protocol = protocol or ProtocolConfig()
+    protocol = protocol or TestProtocolConfig()
     by_variant = read_runs(runs_dir)
     if not by_variant:
         return ["## Ablation (Table 2)", f"No training runs (summary.json) under {runs_dir}.", ""]
@@ -354,11 +357,11 @@ def runs_sections(runs_dir: Path, out: Path, protocol: ProtocolConfig | None = N
         minutes = torch.tensor([h["wall_seconds"] for h in runs[0]["history"]], dtype=torch.float64) / 60
         history = {
             key: [torch.tensor([h.get(key, float("nan")) for h in r["history"]]) for r in runs]
-            for key in ("eval/success_rate", "eval/position_error", "eval/attitude_error")
+            for key in ("eval/success_rate", "eval/hover_error", "eval/attitude_error")
         }
         _plot_band(axes[0, 0], frames, history["eval/success_rate"], variant)
         _plot_band(axes[0, 1], minutes, history["eval/success_rate"], variant)
-        _plot_band(axes[1, 0], frames, history["eval/position_error"], variant)
+        _plot_band(axes[1, 0], frames, history["eval/hover_error"], variant)
         _plot_band(axes[1, 1], frames, history["eval/attitude_error"], variant)
         returns = [_tb_scalars(r["dir"], "train/episode_return") for r in runs]
         steps = returns[0][0] / 1e6
@@ -368,8 +371,8 @@ def runs_sections(runs_dir: Path, out: Path, protocol: ProtocolConfig | None = N
         ("frames (M)", "success rate"),
         ("wall-clock (min)", "success rate"),
         ("frames (M)", "average episode return"),
-        ("frames (M)", "position error, last 2 s (m)"),
-        ("frames (M)", "tilt, last 2 s (deg)"),
+        ("frames (M)", "hover error (m)"),
+        ("frames (M)", "hover tilt (deg)"),
         ("frames (M)", "cumulative episode return"),
     )
     for ax, (xlabel, ylabel) in zip(axes.flat, labels, strict=True):
@@ -385,8 +388,9 @@ def runs_sections(runs_dir: Path, out: Path, protocol: ProtocolConfig | None = N
         "",
         "## Learning curves (figs. 8-10)",
         "Mean over seeds, band = min to max; evaluations every `eval.interval_frames` (success, and the "
-        "position error and tilt over the last 2 s of the flights that did not crash), episode returns per "
-        "batch from TensorBoard (`train/episode_return`) and their running sum.",
+        "hover error and tilt: the median over the successful flights of the mean distance to the goal and "
+        "tilt over their last 2 s), episode returns per batch from TensorBoard (`train/episode_return`) "
+        "and their running sum.",
         "",
         "![learning curves](learning_curves.png)",
         "",
@@ -395,7 +399,7 @@ def runs_sections(runs_dir: Path, out: Path, protocol: ProtocolConfig | None = N
 
 
 def write_report(
-    out, controller=None, runs_dir=None, protocol: ProtocolConfig | None = None, header: str = "", baselines=()
+    out, controller=None, runs_dir=None, protocol: TestProtocolConfig | None = None, header: str = "", baselines=()
 ) -> Path:
     """report.md and its figures in `out`: the protocol suite for `controller` (a policy path or a
     controller name), the comparison with `baselines` (controller names), and Table 2 and the
@@ -403,7 +407,7 @@ def write_report(
     (default: the paper's, on the test starts)."""
     from bfc.controllers import CONTROLLERS
 
-    protocol = protocol or ProtocolConfig()
+    protocol = protocol or TestProtocolConfig()
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     lines = ["# bfc evaluation report", "", header, ""]

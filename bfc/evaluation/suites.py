@@ -1,4 +1,5 @@
-"""Named start sets and flight conditions beyond the paper's protocol, and the robustness table.
+"""Named start sets and flight conditions beyond the paper's protocol (`CONDITIONS`: the rows of
+`evaluate.py suite=robust`), and the robustness table.
 
 Start sets (each (n, 12) in the `"start_state"` layout, x and y uniform in [-2, 2] m):
     protocol  the paper's: z 0.5-3 m, roll and pitch each +-60 deg, any yaw, at rest
@@ -26,7 +27,7 @@ from bfc.envs import AirframeParams
 from bfc.envs.quadrotor import GROUND_HEIGHT
 from bfc.envs.rotations import quat_to_euler
 from bfc.evaluation.judge import judge
-from bfc.evaluation.metrics import tail_distance
+from bfc.evaluation.metrics import hover_error
 from bfc.evaluation.protocol import TEST_SEED, protocol_starts
 
 
@@ -101,7 +102,7 @@ class Condition:
         return out
 
 
-SUITES = {
+CONDITIONS = {
     "protocol": Condition(),
     "harsh": Condition("harsh"),
     "any": Condition("any"),
@@ -117,22 +118,15 @@ SUITES = {
 
 
 def fly_condition(controller, name: str, num_starts: int = 100, seed: int = TEST_SEED, seconds: float = 10.0, **kw):
-    """Fly `controller` (anything `fly` takes) under the named suite condition."""
-    from bfc.evaluation.flights import fly
+    """Fly `controller` (anything `fly` takes) under the named condition (a row of suite=robust)."""
+    from bfc.evaluation.flying import fly
 
-    if name not in SUITES:
-        raise ValueError(f"unknown suite {name!r}; available: {', '.join(SUITES)}")
-    c = SUITES[name]
+    if name not in CONDITIONS:
+        raise ValueError(f"unknown condition {name!r}; available: {', '.join(CONDITIONS)}")
+    c = CONDITIONS[name]
     starts = START_SETS[c.starts](num_starts, seed)
     wind = horizontal_wind(num_starts, c.wind_newtons, seed) if c.wind_newtons else None
     return fly(controller, starts, seconds=seconds, seed=seed, airframe=c.flown_airframe(), external_force=wind, **kw)
-
-
-def hover_error(flights, success: torch.Tensor) -> float | None:
-    """Median over the successful flights of the mean distance to the goal over the last 2 s (m)."""
-    if not bool(success.any()):
-        return None
-    return tail_distance(flights).mean(-1)[success].median().item()
 
 
 def score(flights, threshold: float = 0.10, hold_seconds: float = 1.0) -> dict:
@@ -145,12 +139,12 @@ def score(flights, threshold: float = 0.10, hold_seconds: float = 1.0) -> dict:
 
 
 def robust_results(controllers: dict, names=None, num_starts: int = 100, seed: int = TEST_SEED, protocol=None) -> dict:
-    """{suite: {label: score}} for every controller (label -> anything `fly` takes) and suite."""
+    """{condition: {label: score}} for every controller (label -> anything `fly` takes) and condition."""
     seconds = protocol.seconds if protocol is not None else 10.0
     threshold = protocol.threshold if protocol is not None else 0.10
     hold = protocol.hold_seconds if protocol is not None else 1.0
     results = {}
-    for name in names or SUITES:
+    for name in names or CONDITIONS:
         results[name] = {
             label: score(fly_condition(c, name, num_starts, seed, seconds), threshold, hold)
             for label, c in controllers.items()

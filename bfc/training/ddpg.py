@@ -1,7 +1,8 @@
 """DDPG (Lillicrap et al. 2016), which the paper compares with PPO and TRPO (figs. 5-7), from
 TorchRL's own pieces: `DDPGLoss` (TD(0) critic target through target networks, actor loss
--Q(s, mu(s))), `SoftUpdate` (Polyak target networks, `algo.tau`) and a replay buffer of
-`algo.buffer_size` transitions.
+-Q(s, mu(s))), `SoftUpdate` (Polyak target networks, `algo.ddpg.tau`) and a replay buffer of
+`algo.ddpg.buffer_size` transitions. It reads the `algo.ddpg` section (and optim.max_grad_norm /
+anneal_lr).
 
 The actor is bfc's Gaussian actor with `model.squash` (tanh on the mean) and its std frozen at
 `model.init_std`: sampling it is DDPG's Gaussian exploration noise, and its mean is the
@@ -22,7 +23,8 @@ from torchrl.modules import MLP
 from torchrl.objectives import DDPGLoss, SoftUpdate, ValueEstimators
 
 from bfc import keys
-from bfc.policy import ACTIVATIONS
+from bfc.agent import ACTIVATIONS, gaussian_net
+from bfc.torchrl_compat import buffer_writer_state, load_buffer_writer_state
 
 # What a transition needs; the rest of the collected tensordict stays out of the buffer.
 _KEYS = (
@@ -49,23 +51,23 @@ class QValue(torch.nn.Module):
 
 
 class DDPG:
-    """The DDPG learner: `update(data)` stores the batch, then takes `algo.updates_per_batch`
-    gradient steps on minibatches of `algo.batch_size` replayed transitions. Same interface as
-    `bfc.training.ppo.PPO`; its critic is its own Q network (the runner's V critic is unused)."""
+    """The DDPG learner: `update(data)` stores the batch, then takes `algo.ddpg.updates_per_batch`
+    gradient steps on minibatches of `algo.ddpg.batch_size` replayed transitions (the interface of
+    bfc.training.learners); its critic is its own Q network (the runner's V critic is unused)."""
 
     def __init__(self, cfg, actor, critic=None):
-        a, m = cfg.algo, cfg.model
+        a, m = cfg.algo.ddpg, cfg.model
         self.cfg, self.algo = cfg, a
-        head = actor.module[0].module
-        head.log_std.requires_grad_(False)  # fixed exploration noise
-        obs_size = head.mean[0].in_features
+        net = gaussian_net(actor)
+        net.log_std.requires_grad_(False)  # fixed exploration noise
+        obs_size = net.obs_size
         self.q = TensorDictModule(
             QValue(obs_size, m.critic_hidden, m.activation),
             in_keys=[keys.OBSERVATION, keys.ACTION],
             out_keys=["state_action_value"],
         )
         self.loss_module = DDPGLoss(actor, self.q, delay_actor=True, delay_value=True)
-        self.loss_module.make_value_estimator(ValueEstimators.TD0, gamma=cfg.loss.gamma)
+        self.loss_module.make_value_estimator(ValueEstimators.TD0, gamma=a.gamma)
         self.target_update = SoftUpdate(self.loss_module, tau=a.tau)
         self.actor_optimizer = torch.optim.Adam(
             [p for p in self.loss_module.actor_network_params.values(True, True) if p.requires_grad], lr=a.actor_lr
@@ -118,7 +120,7 @@ class DDPG:
         """The stored transitions only (not the unwritten rest of the storage) and the writer."""
         n = len(self.buffer)
         transitions = self.buffer.storage.get(torch.arange(n)).to_dict() if n else {}
-        return {"transitions": transitions, "size": n, "writer": self.buffer._writer.state_dict()}
+        return {"transitions": transitions, "size": n, "writer": buffer_writer_state(self.buffer)}
 
     def load_state_dict(self, state: dict) -> None:
         self.actor_optimizer.load_state_dict(state["actor_optimizer"])
@@ -127,5 +129,5 @@ class DDPG:
         b = state["buffer"]
         if b["size"]:
             self.buffer.extend(TensorDict.from_dict(b["transitions"], batch_size=[b["size"]]))
-        self.buffer._writer.load_state_dict(b["writer"])
+        load_buffer_writer_state(self.buffer, b["writer"])
         self.steps = int(state["steps"])

@@ -1,19 +1,17 @@
-"""PPO: the losses (clipped, eq. 11, or adaptive KL penalty, eq. 12), GAE (eq. 15) and the update;
-the learner interface every algorithm shares (`make_learner`: ppo here, trpo.py, ddpg.py)."""
+"""PPO: the losses (clipped, eq. 11, or adaptive KL penalty, eq. 12) and the update. It reads the
+`loss` section (and `optim`)."""
 
 from __future__ import annotations
 
-import math
-
 import torch
-import torch.nn.functional as F
 from tensordict import TensorDictBase
 from torchrl.objectives import ClipPPOLoss, KLPENPPOLoss
-from torchrl.objectives.value import GAE
+from torchrl.objectives.utils import distance_loss
 
 from bfc import keys
-from bfc.config import ALGORITHMS, minibatch_size
-from bfc.policy import make_actor, make_critic
+from bfc.agent import GaussianActor, gaussian_net
+from bfc.config import minibatch_size
+from bfc.training.advantage import compute_advantage, make_gae
 
 # What the loss reads; selecting these first makes every minibatch gather cheaper.
 _LOSS_KEYS = (
@@ -38,30 +36,41 @@ LOSS_TAGS = {
 
 class FusedClipLoss:
     """ClipPPOLoss's forward (eq. 11's clipped surrogate on per-minibatch standardised advantages,
-    the L2 critic loss, the entropy term, the approximate KL and the clip fraction) in plain torch
-    on the actor's GaussianHead and the critic's MLP: the same values and gradients as the
-    ClipPPOLoss it is built from (tests/training/test_hot_path.py), without that module's
-    per-call TensorDict and functional-parameter plumbing, which costs more than the networks
-    themselves at the small minibatches bfc trains with (bench/update_time.py)."""
+    the critic loss of its `loss_critic_type`, the entropy term, the approximate KL and the clip
+    fraction) in plain torch on the actor's GaussianActor and the critic's MLP: the same values and
+    gradients as the ClipPPOLoss it is built from (tests/training/test_hot_path.py), without that
+    module's per-call TensorDict and functional-parameter plumbing, which costs more than the
+    networks themselves at the small minibatches bfc trains with (bench/update_time.py).
+    Every option of the loss is read from it; one it does not implement is refused."""
 
     def __init__(self, loss: ClipPPOLoss, actor, critic):
-        self.head, self.value = actor.module[0].module, critic.module
+        unsupported = {
+            "clip_value": loss.clip_value,
+            "separate_losses": loss.separate_losses or None,
+            "advantage_norm": getattr(loss, "advantage_norm", None),
+            "max_importance_ratio": getattr(loss, "max_importance_ratio", None),
+        }
+        used = [name for name, value in unsupported.items() if value is not None]
+        if used or not loss.normalize_advantage:
+            what = ", ".join(used) or "normalize_advantage=False"
+            raise ValueError(f"the fused PPO loss does not implement ClipPPOLoss's {what}")
+        self.net, self.value = gaussian_net(actor), critic.module
         epsilon = loss.clip_epsilon.detach().clone()
         self.low, self.high = (-epsilon).log1p(), epsilon.log1p()  # ClipPPOLoss's bounds on log(ratio)
         self.critic_coeff = loss.critic_coeff.detach().clone()
+        self.critic_loss = loss.loss_critic_type
         self.entropy_coeff = float(loss.entropy_coeff)
         self.eps = torch.finfo(torch.float).resolution  # torchrl's advantage standardisation
 
     def __call__(self, obs, action, old_log_prob, advantage, value_target) -> dict[str, torch.Tensor]:
         advantage = (advantage - advantage.mean()) / advantage.std().clamp_min(self.eps)
-        loc, scale = self.head(obs)
-        log_scale = scale.log()
-        log_prob = (-((action - loc) ** 2) / (2 * scale**2) - log_scale - math.log(math.sqrt(2 * math.pi))).sum(-1)
+        loc, scale = self.net(obs)
+        log_prob = GaussianActor.log_prob(action, loc, scale)
         log_weight = (log_prob - old_log_prob).unsqueeze(-1)
         clipped = log_weight.clamp(self.low, self.high)
         gain = torch.minimum(log_weight.exp() * advantage, clipped.exp() * advantage)
-        entropy = (0.5 + 0.5 * math.log(2 * math.pi) + log_scale).sum(-1, keepdim=True)
-        critic = F.mse_loss(value_target, self.value(obs), reduction="none") * self.critic_coeff
+        entropy = GaussianActor.entropy(scale).unsqueeze(-1)
+        critic = distance_loss(value_target, self.value(obs), self.critic_loss) * self.critic_coeff
         return {
             "loss_objective": -gain.mean(),
             "loss_critic": critic.mean(),
@@ -72,45 +81,24 @@ class FusedClipLoss:
         }
 
 
-def make_models(cfg, obs_size: int, action_spec=None):
-    m = cfg.model
-    actor = make_actor(obs_size, m.actor_hidden, m.activation, m.init_std, action_spec=action_spec, squash=m.squash)
-    critic = make_critic(obs_size, m.critic_hidden, m.activation)
-    return actor, critic
-
-
 def make_loss(cfg, actor, critic):
+    """TorchRL's ClipPPOLoss (or KLPENPPOLoss) and GAE from the `loss` section."""
     lo = cfg.loss
     common = dict(
-        entropy_coeff=lo.entropy_coeff, critic_coeff=lo.critic_coeff, loss_critic_type="l2", normalize_advantage=True
+        entropy_coeff=lo.entropy_coeff,
+        critic_coeff=lo.critic_coeff,
+        loss_critic_type=lo.critic_loss,
+        normalize_advantage=True,
     )
     if lo.kind == "clip":
         loss = ClipPPOLoss(actor, critic, clip_epsilon=lo.clip_epsilon, **common)
     else:
         loss = KLPENPPOLoss(actor, critic, dtarg=lo.dtarg, **common)
-    # GAE reads precomputed values (see compute_advantage): one plain critic pass per batch
-    # instead of TorchRL's vmapped pass over observation and next observation per epoch.
-    advantage = GAE(gamma=lo.gamma, lmbda=lo.lmbda, value_network=None, average_gae=False)
-    advantage.critic = critic
-    return loss, advantage
-
-
-@torch.no_grad()
-def compute_advantage(data: TensorDictBase, advantage) -> None:
-    """Values of observation and next observation in one forward, then GAE (eq. 15) in place."""
-    critic = advantage.critic
-    obs = data.get(keys.OBSERVATION)
-    both = critic.module(torch.cat((obs, data.get(("next", keys.OBSERVATION))), 0))
-    value, next_value = both.split(obs.shape[0], 0)
-    data.set("state_value", value)
-    data.set(("next", "state_value"), next_value)
-    advantage(data)
+    return loss, make_gae(lo.gamma, lo.lmbda, critic)
 
 
 class PPO:
-    """The PPO learner. Every learner (PPO, `trpo.TRPO`, `ddpg.DDPG`) has this interface:
-    `update(data) -> metrics`, `optimizers` (the learning-rate anneal scales them all) and
-    `state_dict()` / `load_state_dict()` (its part of a checkpoint)."""
+    """The PPO learner (the interface of bfc.training.learners)."""
 
     def __init__(self, cfg, actor, critic):
         self.cfg = cfg
@@ -129,22 +117,6 @@ class PPO:
     def load_state_dict(self, state: dict) -> None:
         self.optimizer.load_state_dict(state["optimizer"])
         self.loss_module.load_state_dict(state["loss"], strict=False)
-
-
-def make_learner(cfg, actor, critic):
-    """The learner `algo.name` names (ppo, trpo, ddpg)."""
-    name = cfg.algo.name
-    if name == "ppo":
-        return PPO(cfg, actor, critic)
-    if name == "trpo":
-        from bfc.training.trpo import TRPO
-
-        return TRPO(cfg, actor, critic)
-    if name == "ddpg":
-        from bfc.training.ddpg import DDPG
-
-        return DDPG(cfg, actor, critic)
-    raise ValueError(f"algo.name must be one of {', '.join(ALGORITHMS)}, got {name!r}")
 
 
 def ppo_update(data: TensorDictBase, loss_module, advantage, optimizer, cfg, fused=None) -> dict[str, float]:

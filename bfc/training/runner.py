@@ -6,7 +6,7 @@ Everything a run writes goes under its run directory:
     checkpoints/last.pt      the latest checkpoint (atomic: written to a temporary name, then renamed)
     checkpoints/previous.pt  the one before it: a resume falls back to it if last.pt is unreadable
     policy.pt                the deployable policy: the best in-training evaluation on the validation
-                             starts (highest success rate, then lowest eval/position_error);
+                             starts (highest success rate, then lowest eval/hover_error);
                              checkpoint.keep_best=false: the latest evaluated policy
     policy_last.pt           the policy at the end of training
     summary.json             frames, wall-clock, evaluation history, when 0.905 and 0.99 were first reached
@@ -28,13 +28,13 @@ import torch
 from omegaconf import OmegaConf
 
 from bfc import keys
+from bfc.agent import PolicySpec, SamplingActor, atomic_save, make_critic, save_policy, torchrl_actor
 from bfc.collectors import episode_stats, make_collector
 from bfc.evaluation.evaluator import ProtocolEvaluator
 from bfc.factory import find_transform, make_env
-from bfc.policy import SamplingActor, atomic_save, save_policy
 from bfc.training.curriculum import Curriculum
-from bfc.training.ppo import make_learner, make_models
-from bfc.transforms import ControlledStartingState, JumpingDistribution, PolicyObservation
+from bfc.training.learners import make_learner
+from bfc.transforms import ControlledStartingState, JumpingDistribution, TimeDependentTerminalState
 
 PAPER_SUCCESS = 0.905
 CHECKPOINT = Path("checkpoints") / "last.pt"
@@ -118,17 +118,21 @@ class Runner:
         self.run_dir.mkdir(parents=True, exist_ok=True)
         torch.manual_seed(cfg.seed)
         self.env = make_env(cfg, seed=cfg.seed)
-        self.obs = find_transform(self.env, PolicyObservation)
-        self.actor, self.critic = make_models(cfg, self.obs.size, action_spec=self.env.action_spec)
+        self.spec = PolicySpec.from_config(cfg)
+        self.net = self.spec.make_net()  # the policy: what policy.pt stores
+        self.actor = torchrl_actor(self.net, action_spec=self.env.action_spec)  # TorchRL's view of it
+        m = cfg.model
+        self.critic = make_critic(self.spec.observation_size, m.critic_hidden, m.activation)
         self.learner = make_learner(cfg, self.actor, self.critic)
         self.jd = find_transform(self.env, JumpingDistribution)
         self.css = find_transform(self.env, ControlledStartingState)
+        self.tdts = find_transform(self.env, TimeDependentTerminalState)
         self.curriculum = Curriculum(cfg, self.env, self.jd)
         self.curriculum.apply(0)  # before the collector's first reset
         self.evaluator = ProtocolEvaluator(cfg)
         fpb = int(cfg.collector.frames_per_batch)
         self.total = -(-int(cfg.collector.total_frames) // fpb) * fpb  # whole batches
-        self.collector = make_collector(self.env, SamplingActor(self.actor), fpb, self.total)
+        self.collector = make_collector(self.env, SamplingActor(self.net), fpb, self.total)
         self.frames, self.batches, self.wall = 0, 0, 0.0
         self.history: list[dict] = []
         self.best, self.best_error = -1.0, math.inf
@@ -161,29 +165,24 @@ class Runner:
         atomic_save(self.state_dict(), path)
 
     def load(self, ckpt: dict) -> None:
-        self.actor.load_state_dict(ckpt["actor"])
-        self.critic.load_state_dict(ckpt["critic"])
-        self.learner.load_state_dict(ckpt)
-        self.frames, self.batches, self.wall = int(ckpt["frames"]), int(ckpt["batches"]), float(ckpt["wall"])
-        self.history, self.best = list(ckpt["history"]), float(ckpt["best"])
-        self.best_error = float(ckpt.get("best_error", math.inf))
-        self.collector.load_state_dict(ckpt["collector"])
+        try:
+            self.actor.load_state_dict(ckpt["actor"])
+            self.critic.load_state_dict(ckpt["critic"])
+            self.learner.load_state_dict(ckpt)
+            self.frames, self.batches, self.wall = int(ckpt["frames"]), int(ckpt["batches"]), float(ckpt["wall"])
+            self.history, self.best = list(ckpt["history"]), float(ckpt["best"])
+            self.best_error = float(ckpt["best_error"])
+            self.collector.load_state_dict(ckpt["collector"])
+        except (KeyError, RuntimeError, ValueError) as err:
+            first = str(err).strip().splitlines()[0][:200] if str(err).strip() else type(err).__name__
+            raise ValueError(
+                f"cannot resume {self.run_dir}: its checkpoint does not fit this bfc version's run ({first})"
+            ) from None
         torch.set_rng_state(ckpt["torch_rng"])
 
     def write_policy(self, path: Path) -> None:
-        save_policy(
-            path,
-            self.actor,
-            model=OmegaConf.to_container(self.cfg.model, resolve=True),
-            env=OmegaConf.to_container(self.cfg.env, resolve=True),
-            observation={
-                "size": self.obs.size,
-                "include_acceleration": self.obs.include_acceleration,
-                "position_integral": self.obs.position_integral,
-                "kind": self.obs.kind,
-            },
-            info={"frames": self.frames, "wall_seconds": round(self.wall, 1), "seed": int(self.cfg.seed)},
-        )
+        info = {"frames": self.frames, "wall_seconds": round(self.wall, 1), "seed": int(self.cfg.seed)}
+        save_policy(path, self.spec, self.net, info)
 
     # ------------------------------------------------------------------ log / evaluate
     def log(self, metrics: dict, step: int) -> None:
@@ -195,16 +194,17 @@ class Runner:
     def evaluate(self) -> dict:
         """The protocol on the validation starts; keeps policy.pt as the best so far."""
         t0 = time.perf_counter()
-        metrics = self.evaluator(self.actor)
+        metrics = self.evaluator(self.net)
         metrics["time/eval_seconds"] = time.perf_counter() - t0
         # unix_seconds: when the evaluation ended, so a benchmark can count from process start
         entry = {"frames": self.frames, "wall_seconds": round(self.wall, 1), "unix_seconds": round(time.time(), 2)}
         self.history.append({**entry, **metrics})
         self.log(metrics, self.frames)
         # Success saturates at 1.0 early, so ties are common: among them the more precise hover wins.
-        better = (metrics["eval/success_rate"], -metrics["eval/position_error"]) >= (self.best, -self.best_error)
+        error = metrics.get("eval/hover_error", math.inf)
+        better = (metrics["eval/success_rate"], -error) >= (self.best, -self.best_error)
         if better:
-            self.best, self.best_error = metrics["eval/success_rate"], metrics["eval/position_error"]
+            self.best, self.best_error = metrics["eval/success_rate"], error
         if better or not self.cfg.checkpoint.keep_best:
             self.write_policy(self.run_dir / "policy.pt")
         return metrics
@@ -317,9 +317,11 @@ class Runner:
         self.timing["update_seconds"] += t_updated - t_collected
         self.timing["batches"] += 1
         metrics["time/wall_seconds"] = self.wall
-        metrics["train/policy_std"] = self.actor.module[0].module.log_std.exp().mean().item()
+        metrics["train/policy_std"] = self.net.log_std.exp().mean().item()
         metrics["train/physics_failures"] = float(self.env.base_env.physics_failures)
         metrics["train/jd_probability"] = self.jd.probability if self.jd is not None else 0.0
+        if self.tdts is not None:
+            metrics["train/tdts_fired"] = float(self.tdts.fired)
         metrics["train/curriculum"] = self.curriculum.scale(self.frames - n)  # the batch just collected
         return metrics
 

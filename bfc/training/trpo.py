@@ -3,7 +3,8 @@ loss, so the step is built here on its pieces: the same Gaussian actor and criti
 GAE (eq. 15), and a natural-gradient step on the surrogate (conjugate gradient on Fisher-vector
 products of the mean KL) scaled to the KL bound `algo.max_kl` and checked by a backtracking line
 search: a step is taken only if the surrogate improves and the measured KL stays within the bound.
-The critic is fitted with Adam (`loss.epochs` passes of minibatches), as in the original.
+The critic is fitted with Adam (`algo.trpo.critic_epochs` passes of `critic_minibatches`
+minibatches, lr `optim.lr`), as in the original. It reads the `algo.trpo` section (and `optim`).
 """
 
 from __future__ import annotations
@@ -11,11 +12,10 @@ from __future__ import annotations
 import math
 
 import torch
-from torch.distributions import Normal, kl_divergence
 
 from bfc import keys
-from bfc.config import minibatch_size
-from bfc.training.ppo import compute_advantage, make_loss
+from bfc.agent import GaussianActor, gaussian_net
+from bfc.training.advantage import compute_advantage, make_gae
 
 
 def _flat(tensors) -> torch.Tensor:
@@ -45,11 +45,11 @@ class TRPO:
     the critic. Same interface as `bfc.training.ppo.PPO`."""
 
     def __init__(self, cfg, actor, critic):
-        self.cfg, self.algo = cfg, cfg.algo
-        self.head = actor.module[0].module  # GaussianHead: obs -> (loc, scale)
+        self.cfg, self.algo = cfg, cfg.algo.trpo
+        self.net = gaussian_net(actor)
         self.critic = critic
-        self.params = [p for p in self.head.parameters() if p.requires_grad]
-        _, self.advantage = make_loss(cfg, actor, critic)  # GAE only
+        self.params = [p for p in self.net.parameters() if p.requires_grad]
+        self.advantage = make_gae(self.algo.gamma, self.algo.lmbda, critic)
         self.optimizer = torch.optim.Adam(critic.parameters(), lr=cfg.optim.lr)
         self.optimizers = [self.optimizer]
         self.last_kl = 0.0
@@ -65,17 +65,16 @@ class TRPO:
         """One KL-bounded natural-gradient step on the surrogate E[pi/pi_old A]."""
         a = self.algo
         with torch.no_grad():
-            old_loc, old_scale = self.head(obs)
-        old = Normal(old_loc, old_scale)
+            old_loc, old_scale = self.net(obs)
 
         def surrogate():
-            loc, scale = self.head(obs)
-            ratio = (Normal(loc, scale).log_prob(action).sum(-1) - old_log_prob).exp()
+            loc, scale = self.net(obs)
+            ratio = (GaussianActor.log_prob(action, loc, scale) - old_log_prob).exp()
             return (ratio * adv).mean()
 
         def mean_kl():
-            loc, scale = self.head(obs)
-            return kl_divergence(old, Normal(loc, scale)).sum(-1).mean()
+            loc, scale = self.net(obs)
+            return GaussianActor.kl(old_loc, old_scale, loc, scale).mean()
 
         def fvp(v):
             grads = torch.autograd.grad(mean_kl(), self.params, create_graph=True)
@@ -113,8 +112,9 @@ class TRPO:
         adv = (adv - adv.mean()) / adv.std().clamp_min(1e-8)
         metrics = self.policy_step(obs, action, old_log_prob, adv)
         target = flat.get("value_target")
-        size, params, critic_losses = minibatch_size(self.cfg), list(self.critic.parameters()), []
-        for _ in range(self.cfg.loss.epochs):
+        size = max(1, obs.shape[0] // int(self.algo.critic_minibatches))
+        params, critic_losses = list(self.critic.parameters()), []
+        for _ in range(self.algo.critic_epochs):
             perm = torch.randperm(obs.shape[0])
             for s in range(0, obs.shape[0], size):
                 idx = perm[s : s + size]
@@ -126,7 +126,7 @@ class TRPO:
                 critic_losses.append(float(loss.detach()))
         metrics["loss/critic"] = sum(critic_losses) / len(critic_losses)
         with torch.no_grad():
-            metrics["loss/entropy"] = float(Normal(*self.head(obs[:1])).entropy().sum(-1).mean())
+            metrics["loss/entropy"] = float(GaussianActor.entropy(self.net(obs[:1])[1]).mean())
         return metrics
 
     def state_dict(self) -> dict:

@@ -1,22 +1,26 @@
 """Composable TorchRL transforms: odometry noise, the BFC start samplers (JD, CSS), TDTS, and
 the policy-side observation and action maps."""
 
-from bfc.transforms.action import MotorSpeedAction
+from bfc.transforms.action import ACTION_MAPS, MotorSpeedAction
 from bfc.transforms.css import ControlledStartingState
 from bfc.transforms.jd import JumpingDistribution
-from bfc.transforms.noise import GaussianOdometryNoise, OUOdometryNoise, element_mask
-from bfc.transforms.observation import PolicyObservation
+from bfc.transforms.noise import GaussianOdometryNoise, OdometryNoise, OUOdometryNoise, element_mask
+from bfc.transforms.observation import OBSERVATIONS, PolicyObservation, observation_size
 from bfc.transforms.starts import GivenStarts
 from bfc.transforms.tdts import TimeDependentTerminalState
 
 __all__ = [
+    "ACTION_MAPS",
+    "OBSERVATIONS",
     "ControlledStartingState",
     "GaussianOdometryNoise",
     "JumpingDistribution",
     "MotorSpeedAction",
     "OUOdometryNoise",
+    "OdometryNoise",
     "PolicyObservation",
     "GivenStarts",
     "TimeDependentTerminalState",
     "element_mask",
+    "observation_size",
 ]

@@ -7,12 +7,9 @@ from tensordict import TensorDict, TensorDictBase
 from torchrl.envs import Transform
 
 from bfc import keys
+from bfc.checks import check
 
-
-def check(cond: bool, key: str, allowed: str, value) -> None:
-    """Raise a ValueError that names the config key and what is allowed."""
-    if not cond:
-        raise ValueError(f"{key} must be {allowed}, got {value!r}")
+__all__ = ["BatchedTransform", "StartSampler", "check", "reset_mask"]
 
 
 def reset_mask(tensordict: TensorDictBase | None, n: int) -> torch.Tensor:
@@ -57,20 +54,24 @@ class BatchedTransform(Transform):
 class StartSampler(BatchedTransform):
     """A transform that fills part of `"start_state"` before the env resets.
 
-    Entries left NaN are drawn by the env from the task distribution D, so samplers compose
-    without knowing about each other (CSS writes x, y; JD height, attitude and velocities).
+    A sampler fills only the entries that are still NaN: a `"start_state"` given to `reset()` (or
+    written by a sampler that ran before) wins, so `env.reset(TensorDict(start_state=...))`
+    places envs exactly as on the base env. Entries left NaN are drawn by the env from the task
+    distribution D, so samplers compose without knowing about each other (CSS writes x, y; JD
+    height, attitude and velocities). Its random draws are the same whatever was given.
     """
 
     def _reset_env_preprocess(self, tensordict: TensorDictBase | None) -> TensorDictBase:
         n = self.num_envs
         if tensordict is None:
             tensordict = TensorDict({}, batch_size=[n])
-        start = tensordict.get(keys.START_STATE, None)
-        if start is None:
-            start = torch.full((n, 12), float("nan"))
-        else:
-            start = start.clone()
+        given = tensordict.get(keys.START_STATE, None)
+        start = torch.full((n, 12), float("nan"))
         self.fill_starts(start, reset_mask(tensordict, n))
+        if given is not None:
+            if given.shape != (n, 12):
+                raise ValueError(f"start_state must have shape ({n}, 12), got {tuple(given.shape)}")
+            start = torch.where(torch.isnan(given), start, given.to(start.dtype))
         tensordict.set(keys.START_STATE, start)
         return tensordict
 

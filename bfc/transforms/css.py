@@ -30,7 +30,7 @@ class ControlledStartingState(StartSampler):
     ):
         super().__init__(num_envs)
         check(isinstance(grid, int) and grid >= 1, "css.grid", "an integer >= 1 (squares per side)", grid)
-        check(math.isfinite(xy_range) and xy_range > 0, "css.xy_range", "> 0", xy_range)
+        check(math.isfinite(xy_range) and xy_range > 0, "env.start.xy_range", "> 0 with CSS on", xy_range)
         check(math.isfinite(temperature) and temperature > 0, "css.temperature", "> 0", temperature)
         check(0.0 <= uniform <= 1.0, "css.uniform", "in [0, 1]", uniform)
         self.grid, self.xy_range, self.temperature, self.uniform = grid, float(xy_range), float(temperature), uniform
@@ -84,13 +84,19 @@ class ControlledStartingState(StartSampler):
         self.visited |= hit
         self.episodes += counts.long()
 
-    def _step(self, tensordict: TensorDictBase, next_tensordict: TensorDictBase) -> TensorDictBase:
-        self.reward_sum += next_tensordict.get(keys.REWARD).reshape(self.num_envs)
+    def advance(self, reward: torch.Tensor, done: torch.Tensor) -> None:
+        """One control step: add each env's reward (N,) to its episode; apply eq. 18 for the
+        episodes that ended (`done` (N,) bool) in a square CSS chose."""
+        self.reward_sum += reward
         self.length += 1
-        ended = next_tensordict.get(keys.DONE).reshape(self.num_envs) & (self.square >= 0)
+        ended = done & (self.square >= 0)
         if bool(ended.any()):
             self.update(self.square[ended], self.reward_sum[ended] / self.length[ended])
             self.square.masked_fill_(ended, -1)
+
+    def _step(self, tensordict: TensorDictBase, next_tensordict: TensorDictBase) -> TensorDictBase:
+        n = self.num_envs
+        self.advance(next_tensordict.get(keys.REWARD).reshape(n), next_tensordict.get(keys.DONE).reshape(n))
         return next_tensordict
 
     def _reset(self, tensordict: TensorDictBase, tensordict_reset: TensorDictBase) -> TensorDictBase:

@@ -1,7 +1,8 @@
 """Jumping Distribution (JD, paper sec. 4.1): start in the air with probability p(t), else on the ground.
 
 p(t) starts at p0 and decays with the number of env steps collected (all envs counted) to exactly
-0 at `decay_frames`. The counter is a buffer, so it survives checkpoint/resume.
+`p_end` (0 in the paper) at `decay_frames`, and stays there. The counter is a buffer, so it
+survives checkpoint/resume.
 """
 
 from __future__ import annotations
@@ -32,6 +33,7 @@ class JumpingDistribution(StartSampler):
         self,
         num_envs: int,
         p0: float = 1.0,
+        p_end: float = 0.0,
         decay_frames: int = 10_000_000,
         schedule: str = "linear",
         z_range=(0.5, 3.0),
@@ -49,9 +51,10 @@ class JumpingDistribution(StartSampler):
         check(0.0 <= inverted_at_rest <= 1.0, "jd.inverted_at_rest", "in [0, 1]", inverted_at_rest)
         check(0.0 < inverted_spread <= 1.0, "jd.inverted_spread", "in (0, 1]", inverted_spread)
         check(0.0 <= p0 <= 1.0, "jd.p0", "in [0, 1]", p0)
+        check(0.0 <= p_end <= 1.0, "jd.p_end", "in [0, 1]", p_end)
         check(isinstance(decay_frames, int) and decay_frames >= 0, "jd.decay_frames", "an integer >= 0", decay_frames)
         check(schedule in SCHEDULES, "jd.schedule", f"one of {SCHEDULES}", schedule)
-        self.p0, self.decay_frames, self.schedule = float(p0), int(decay_frames), schedule
+        self.p0, self.p_end, self.decay_frames, self.schedule = float(p0), float(p_end), int(decay_frames), schedule
         lows, highs = [], []
         for name, value, scale in (
             ("z_range", z_range, 1.0),
@@ -86,8 +89,6 @@ class JumpingDistribution(StartSampler):
         self.inverted_spread = float(inverted_spread)
         self._widens = torch.tensor([0.0, 1, 1, 0, 1, 1, 1, 1, 1, 1])  # z, roll, pitch, yaw, v, w
         self.register_buffer("frames", torch.zeros((), dtype=torch.long))
-        self.register_buffer("air_starts", torch.zeros((), dtype=torch.long))
-        self.register_buffer("resets", torch.zeros((), dtype=torch.long))
 
     @property
     def probability(self) -> float:
@@ -98,11 +99,12 @@ class JumpingDistribution(StartSampler):
         if self.schedule == "constant":
             return self.p0
         if self.decay_frames == 0 or frames >= self.decay_frames:
-            return 0.0
+            return self.p_end
         progress = frames / self.decay_frames
         if self.schedule == "linear":
-            return self.p0 * (1.0 - progress)
-        return self.p0 * 0.5 * (1.0 + math.cos(math.pi * progress))
+            return self.p0 * (1.0 - progress) + self.p_end * progress
+        weight = 0.5 * (1.0 + math.cos(math.pi * progress))
+        return self.p0 * weight + self.p_end * (1.0 - weight)
 
     def fill_starts(self, start: torch.Tensor, mask: torch.Tensor) -> None:
         air = mask & (self.rand(self.num_envs) < self.probability)
@@ -123,11 +125,13 @@ class JumpingDistribution(StartSampler):
                 still = flip & (self.rand(self.num_envs) < self.inverted_at_rest)
                 drawn[:, 4:] = torch.where(still.unsqueeze(-1), 0.0, drawn[:, 4:])
         start[:, 2:12] = torch.where(air.unsqueeze(-1), drawn, start[:, 2:12])
-        self.air_starts += int(air.sum())
-        self.resets += int(mask.sum())
+
+    def advance(self) -> None:
+        """One control step of every env: p(t) counts it."""
+        self.frames += self.num_envs
 
     def _step(self, tensordict: TensorDictBase, next_tensordict: TensorDictBase) -> TensorDictBase:
-        self.frames += self.num_envs
+        self.advance()
         return next_tensordict
 
     def _reset(self, tensordict: TensorDictBase, tensordict_reset: TensorDictBase) -> TensorDictBase:

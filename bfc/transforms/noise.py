@@ -49,33 +49,38 @@ def _std_vector(std) -> torch.Tensor:
     return std_t.expand(ODOMETRY_SIZE).clone()
 
 
-class _OdometryNoise(BatchedTransform):
+class OdometryNoise(BatchedTransform):
+    """What the noise models share: a per-element std (zero outside `elements`) and `corrupt`."""
+
     def __init__(self, num_envs: int, std, elements="all"):
         super().__init__(num_envs, in_keys=[keys.ODOMETRY], out_keys=[keys.ODOMETRY])
         self.register_buffer("std", _std_vector(std) * element_mask(elements))
 
     def noise(self, mask: torch.Tensor | None) -> torch.Tensor:
+        """(N, 18) the noise of this step (mask None) or of a reset of the envs in `mask`."""
         raise NotImplementedError
 
-    def _corrupt(self, td: TensorDictBase, noise: torch.Tensor) -> TensorDictBase:
-        td.set(keys.ODOMETRY, td.get(keys.ODOMETRY) + noise)
-        return td
+    def corrupt(self, odometry: torch.Tensor, mask: torch.Tensor | None = None) -> torch.Tensor:
+        """What the sensors report: `odometry` (N, 18) plus this step's noise (or a reset's, for
+        the envs in `mask`); a new tensor."""
+        return odometry + self.noise(mask)
 
     def _step(self, tensordict: TensorDictBase, next_tensordict: TensorDictBase) -> TensorDictBase:
-        return self._corrupt(next_tensordict, self.noise(None))
+        return next_tensordict.set(keys.ODOMETRY, self.corrupt(next_tensordict.get(keys.ODOMETRY)))
 
     def _reset(self, tensordict: TensorDictBase, tensordict_reset: TensorDictBase) -> TensorDictBase:
-        return self._corrupt(tensordict_reset, self.noise(reset_mask(tensordict, self.num_envs)))
+        odometry = self.corrupt(tensordict_reset.get(keys.ODOMETRY), reset_mask(tensordict, self.num_envs))
+        return tensordict_reset.set(keys.ODOMETRY, odometry)
 
 
-class GaussianOdometryNoise(_OdometryNoise):
+class GaussianOdometryNoise(OdometryNoise):
     """Adds N(0, std^2) independently per element and step (std a number or 18 numbers)."""
 
     def noise(self, mask):
         return self.randn(self.num_envs, ODOMETRY_SIZE) * self.std
 
 
-class OUOdometryNoise(_OdometryNoise):
+class OUOdometryNoise(OdometryNoise):
     """Ornstein-Uhlenbeck noise, dx = -theta x dt + sigma dW, discretised exactly at the env step.
 
     `std` is the stationary standard deviation (sigma = std sqrt(2 theta)), so Gaussian and OU

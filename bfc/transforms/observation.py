@@ -16,8 +16,9 @@ numbers as they come, the position made relative to the goal, no previous comman
 memoryless policy cannot tell a heavier body, a weaker motor or wind from its own error, so it
 hovers off the goal by the offset such a disturbance needs; with the integral it can remove it,
 as the integral term of a PID does. It integrates only within `integral_radius` of the goal (no
-wind-up while flying in from afar) and is clipped to +-`integral_limit` (m s); it restarts at
-zero with each episode.
+wind-up while flying in from afar) and is clipped to +-`integral_limit` (m s); it restarts with
+each episode, from the error of the episode's first odometry (so at every step it includes the
+current error: the same recursion the exported policies run, bfc/agent/onnx.py).
 """
 
 from __future__ import annotations
@@ -30,6 +31,13 @@ from bfc import keys
 from bfc.transforms._base import BatchedTransform, check, reset_mask
 
 OBSERVATIONS = ("heading", "odometry")
+
+
+def observation_size(kind: str = "heading", include_acceleration: bool = False, position_integral: bool = False) -> int:
+    """How many numbers the observation of this kind has (the policy network's input size)."""
+    check(kind in OBSERVATIONS, "model.observation", " or ".join(OBSERVATIONS), kind)
+    base = 18 if kind == "odometry" else 22 + (6 if include_acceleration else 0)
+    return base + (3 if position_integral else 0)
 
 
 def to_heading_frame(v: torch.Tensor, yaw: torch.Tensor, cos_sin=None) -> torch.Tensor:
@@ -64,7 +72,7 @@ class PolicyObservation(BatchedTransform):
     ):
         super().__init__(num_envs, in_keys=[keys.ODOMETRY, keys.GOAL], out_keys=[keys.OBSERVATION])
         check(hover_speed > 0, "hover_speed", "> 0", hover_speed)
-        check(position_clip > 0, "model.position_clip", "> 0", position_clip)
+        check(position_clip > 0, "position_clip", "> 0 (metres)", position_clip)
         self.hover_speed = float(hover_speed)
         self.position_clip = float(position_clip)
         self.velocity_scale = float(velocity_scale)
@@ -75,10 +83,8 @@ class PolicyObservation(BatchedTransform):
         check(dt > 0, "dt", "> 0", dt)
         self.dt, self.integral_radius = float(dt), float(integral_radius)
         self.integral_limit, self.integral_scale = float(integral_limit), float(integral_scale)
-        check(kind in OBSERVATIONS, "model.observation", " or ".join(OBSERVATIONS), kind)
         self.kind = kind
-        base = 18 if kind == "odometry" else 22 + (6 if include_acceleration else 0)
-        self.size = base + (3 if position_integral else 0)
+        self.size = observation_size(kind, include_acceleration, position_integral)
         # the previous command is shown in the policy's own action space (MotorSpeedAction.to_action)
         self.command_to_action = command_to_action or (lambda command: command / self.hover_speed - 1.0)
         self.register_buffer("last_action", torch.zeros(num_envs, 4))
@@ -130,6 +136,26 @@ class PolicyObservation(BatchedTransform):
             raise ValueError("this observation has a position_integral: pass the integral (N, 3)")
         return to_heading_frame(integral, yaw, cos_sin) * self.integral_scale
 
+    def advance(self, command: torch.Tensor, odometry: torch.Tensor, goal: torch.Tensor) -> torch.Tensor:
+        """One control step: remember the command just flown (N, 4, rad/s) as the previous action,
+        integrate the position error, and return the observation (N, size) of the new odometry."""
+        self.last_action.copy_(self.command_to_action(command).clamp(-1, 1))
+        if self.position_integral:
+            self.integral.copy_(self.integrate(self.integral, odometry, goal))
+        return self.build(odometry, goal, self.last_action, self.integral)
+
+    def restart(self, mask: torch.Tensor, odometry: torch.Tensor, goal: torch.Tensor) -> torch.Tensor:
+        """The envs in `mask` (N,) start a new episode: no previous action, and the integral of
+        the error of their first odometry alone (the integral always includes the current
+        error, from the first step on, as the exported graph computes it); the observation
+        (N, size) of every env."""
+        mask = mask.unsqueeze(-1)
+        self.last_action.masked_fill_(mask, 0.0)
+        if self.position_integral:
+            first = self.integrate(torch.zeros_like(self.integral), odometry, goal)
+            self.integral.copy_(torch.where(mask, first, self.integral))
+        return self.build(odometry, goal, self.last_action, self.integral)
+
     def _call(self, td: TensorDictBase) -> TensorDictBase:
         # build() writes a new tensor: the buffers themselves are never handed out
         obs = self.build(td.get(keys.ODOMETRY), td.get(keys.GOAL), self.last_action, self.integral)
@@ -138,18 +164,15 @@ class PolicyObservation(BatchedTransform):
 
     def _step(self, tensordict: TensorDictBase, next_tensordict: TensorDictBase) -> TensorDictBase:
         # The action here is the motor command in rad/s (inverse transforms already ran).
-        command = tensordict.get(keys.ACTION)
-        self.last_action.copy_(self.command_to_action(command).clamp(-1, 1))
-        if self.position_integral:
-            odometry, goal = next_tensordict.get(keys.ODOMETRY), next_tensordict.get(keys.GOAL)
-            self.integral.copy_(self.integrate(self.integral, odometry, goal))
-        return self._call(next_tensordict)
+        obs = self.advance(
+            tensordict.get(keys.ACTION), next_tensordict.get(keys.ODOMETRY), next_tensordict.get(keys.GOAL)
+        )
+        return next_tensordict.set(keys.OBSERVATION, obs)
 
     def _reset(self, tensordict: TensorDictBase, tensordict_reset: TensorDictBase) -> TensorDictBase:
-        mask = reset_mask(tensordict, self.num_envs).unsqueeze(-1)
-        self.last_action.masked_fill_(mask, 0.0)
-        self.integral.masked_fill_(mask, 0.0)
-        return self._call(tensordict_reset)
+        mask = reset_mask(tensordict, self.num_envs)
+        obs = self.restart(mask, tensordict_reset.get(keys.ODOMETRY), tensordict_reset.get(keys.GOAL))
+        return tensordict_reset.set(keys.OBSERVATION, obs)
 
     def transform_observation_spec(self, observation_spec: Composite) -> Composite:
         observation_spec[keys.OBSERVATION] = Unbounded(shape=(self.num_envs, self.size), dtype=torch.float32)

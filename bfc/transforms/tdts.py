@@ -35,21 +35,34 @@ class TimeDependentTerminalState(BatchedTransform):
         self.zeta, self.threshold_seconds, self.as_terminal = float(zeta), float(threshold_seconds), bool(as_terminal)
         self.threshold_steps = max(1, round(threshold_seconds / dt))
         self.register_buffer("inside_steps", torch.zeros(num_envs, dtype=torch.long))
-        self.register_buffer("fired", torch.zeros((), dtype=torch.long))  # total TDT events
+        self.register_buffer("fired", torch.zeros((), dtype=torch.long))  # TDT events so far (train/tdts_fired)
 
-    def _step(self, tensordict: TensorDictBase, next_tensordict: TensorDictBase) -> TensorDictBase:
-        err = next_tensordict.get(keys.POSITION) - next_tensordict.get(keys.GOAL)
-        inside = (err.abs() <= self.zeta).all(-1)
+    def advance(self, position: torch.Tensor, goal: torch.Tensor) -> torch.Tensor:
+        """One control step of the timers from the true position and the goal (N, 3) each:
+        (N,) bool, the envs whose time-dependent terminal state fires now."""
+        inside = ((position - goal).abs() <= self.zeta).all(-1)
         self.inside_steps.copy_(torch.where(inside, self.inside_steps + 1, 0))
         fire = self.inside_steps >= self.threshold_steps
+        self.fired += fire.sum()
+        return fire
+
+    def restart(self, mask: torch.Tensor) -> None:
+        """The timers of the envs in `mask` (N,) start again (their episode restarts)."""
+        self.inside_steps.masked_fill_(mask, 0)
+
+    @property
+    def flag(self) -> str:
+        """The done entry a firing sets beside `"done"`: terminated or truncated (`as_terminal`)."""
+        return keys.TERMINATED if self.as_terminal else keys.TRUNCATED
+
+    def _step(self, tensordict: TensorDictBase, next_tensordict: TensorDictBase) -> TensorDictBase:
+        fire = self.advance(next_tensordict.get(keys.POSITION), next_tensordict.get(keys.GOAL))
         if bool(fire.any()):
-            self.fired += int(fire.sum())
-            key = keys.TERMINATED if self.as_terminal else keys.TRUNCATED
             flag = fire.unsqueeze(-1)
-            next_tensordict.set(key, next_tensordict.get(key) | flag)
+            next_tensordict.set(self.flag, next_tensordict.get(self.flag) | flag)
             next_tensordict.set(keys.DONE, next_tensordict.get(keys.DONE) | flag)
         return next_tensordict
 
     def _reset(self, tensordict: TensorDictBase, tensordict_reset: TensorDictBase) -> TensorDictBase:
-        self.inside_steps.masked_fill_(reset_mask(tensordict, self.num_envs), 0)
+        self.restart(reset_mask(tensordict, self.num_envs))
         return tensordict_reset

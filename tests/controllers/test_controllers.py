@@ -85,12 +85,10 @@ def test_lee_recovers_a_tilted_start():
 
 def run_steps(controller, starts, steps):
     """Fly by hand, checking the MPC's input after every control step."""
-    from bfc.evaluation.flights import config_for
-    from bfc.factory import find_transform, make_env
+    from bfc.factory import find_transform, make_flight_env
     from bfc.transforms import GivenStarts
 
-    cfg = config_for({"control_hz": 250.0})
-    env = make_env(cfg, num_envs=starts.shape[0], samplers=False, given_starts=True, policy_io=False, seed=0)
+    env = make_flight_env(starts.shape[0], control_hz=250.0, seed=0)
     find_transform(env, GivenStarts).set_starts(starts)
     td = env.reset()
     lo, hi = controller.model.lower, controller.model.upper

@@ -44,7 +44,7 @@ def test_hover_at_analytic_speed_holds_altitude():
     a = env.airframe
     hover = math.sqrt(a.total_mass * a.gravity / (4 * a.motor_constant))
     assert env.hover_speed == pytest.approx(hover)
-    assert 450 < hover < 460  # SPEC.md: about 453-458 rad/s
+    assert 450 < hover < 460  # the RotorS Hummingbird hovers at about 453-458 rad/s
     td = reset_to(env, air_start(2))
     z = []
     for _ in range(250):  # 1 s at 250 Hz

@@ -7,8 +7,8 @@ from pathlib import Path
 
 import torch
 
+from bfc.agent import read_policy
 from bfc.evaluation import fly, protocol_starts, success
-from bfc.policy import read_policy_file
 
 ROOT = Path(__file__).resolve().parents[2]
 SHIPPED = ROOT / "pretrained" / "policy.pt"
@@ -25,8 +25,7 @@ def evaluate(*args, out):
 
 
 def test_shipped_policy_is_data_and_flies_at_its_own_rate():
-    payload = read_policy_file(SHIPPED)  # weights_only load
-    hz = payload["env"]["control_hz"]
+    hz = read_policy(SHIPPED).spec.control_hz  # a weights_only load
     tr = fly(SHIPPED, protocol_starts(20, seed=0), seconds=10.0)
     assert tr.shape == (20, round(10.0 * hz))
     assert success(tr).float().mean() >= 0.9  # the shipped policy clears the paper's 90.5% here too
@@ -76,7 +75,7 @@ def test_paper_suite_writes_a_report_with_figures(tmp_path):
 
 
 def test_suite_reads_table_2_from_training_runs(tmp_path):
-    from bfc.config import ProtocolConfig
+    from bfc.config import TestProtocolConfig
     from bfc.evaluation.report import runs_sections
     from bfc.training import train
 
@@ -84,7 +83,7 @@ def test_suite_reads_table_2_from_training_runs(tmp_path):
 
     for variant in ("jd_tdts", "jd"):
         train(compose_cfg([f"+ablation={variant}", *TINY, "env.episode_seconds=0.2"]), tmp_path / "runs" / variant)
-    lines = runs_sections(tmp_path / "runs", tmp_path, ProtocolConfig(num_starts=4, seconds=1.0))
+    lines = runs_sections(tmp_path / "runs", tmp_path, TestProtocolConfig(num_starts=4, seconds=1.0))
     rows = [line for line in lines if line.startswith("| jd")]
     assert [row.split("|")[1].strip() for row in rows] == ["jd", "jd_tdts"]  # the paper's order
     assert (tmp_path / "learning_curves.png").stat().st_size > 10_000
@@ -106,22 +105,22 @@ def _fake_run(run_dir, variant: str, seed: int, policy, final: float, reached_at
 
 
 def test_table_2_gives_the_mean_and_spread_of_the_final_policies_on_the_test_starts(tmp_path):
-    from bfc.config import ProtocolConfig
+    from bfc.agent import save_policy
+    from bfc.config import TestProtocolConfig
     from bfc.evaluation.report import runs_sections
     from bfc.evaluation.suites import START_SETS, score
-    from bfc.policy import make_actor, read_policy_file, save_policy
 
-    shipped = read_policy_file(SHIPPED)
+    shipped = read_policy(SHIPPED)
     falling = tmp_path / "falling.pt"  # a policy that commands the motors off: never succeeds
-    actor = make_actor(shipped["observation"]["size"], shipped["model"]["actor_hidden"])
+    net = shipped.spec.make_net()
     with torch.no_grad():
-        actor.module[0].module.mean[-1].bias.fill_(-1.0)
-    save_policy(falling, actor, **{k: shipped[k] for k in ("model", "env", "observation", "info")})
+        net.mlp[-1].bias.fill_(-1.0)
+    save_policy(falling, shipped.spec, net)
     runs = tmp_path / "runs"
     _fake_run(runs / "a", "jd_css_tdts", 0, SHIPPED, 1.0, 1_000_000)
     _fake_run(runs / "b", "jd_css_tdts", 1, falling, 0.5, None)
     _fake_run(runs / "c", "ppo", 0, falling, 0.0, None)
-    protocol = ProtocolConfig(num_starts=8, seconds=3.0)
+    protocol = TestProtocolConfig(num_starts=8, seconds=3.0)
     lines = runs_sections(runs, tmp_path, protocol)
     rows = {
         line.split("|")[1].strip(): [c.strip() for c in line.split("|")[2:-1]]
@@ -147,7 +146,7 @@ def test_table_2_gives_the_mean_and_spread_of_the_final_policies_on_the_test_sta
 
 def test_the_protocol_keys_moved_under_eval(tmp_path):
     r = evaluate("policy=pretrained/policy.pt", "num_starts=5", out=tmp_path)
-    assert r.returncode != 0 and "Key 'num_starts' not in 'EvaluateConfig'" in r.stderr
+    assert r.returncode == 2 and r.stderr.strip() == "error: num_starts has moved: it is eval.num_starts now"
 
 
 def test_single_evaluation_honours_the_protocol_keys(tmp_path):

@@ -14,7 +14,15 @@ from bfc.envs.quadrotor import GROUND_HEIGHT
 from bfc.envs.rotations import euler_to_quat
 from bfc.evaluation import TEST_SEED, VALIDATION_SEED, fly, protocol_starts, success
 from bfc.evaluation.metrics import tilt_degrees
-from bfc.evaluation.suites import SUITES, any_starts, ground_starts, harsh_starts, horizontal_wind, robust_table, score
+from bfc.evaluation.suites import (
+    CONDITIONS,
+    any_starts,
+    ground_starts,
+    harsh_starts,
+    horizontal_wind,
+    robust_table,
+    score,
+)
 
 DEG = math.pi / 180
 
@@ -50,7 +58,7 @@ def test_sets_are_reproducible_and_the_selection_starts_are_not_the_test_starts(
     assert torch.equal(harsh_starts(10, 3), harsh_starts(10, 3))
     assert not torch.equal(harsh_starts(10, 3), harsh_starts(10, 4))
     assert not torch.equal(protocol_starts(100, VALIDATION_SEED), protocol_starts(100, TEST_SEED))
-    assert compose().eval.seed == VALIDATION_SEED  # training picks policy.pt on these
+    assert compose().eval.validation_seed == VALIDATION_SEED  # training picks policy.pt on these
     assert compose([], config_name="evaluate").eval.seed == TEST_SEED  # the docs report these
 
 
@@ -130,4 +138,4 @@ def test_wind_is_horizontal_with_the_given_strength_and_the_table_reads_the_scor
     assert s["success_rate"] == 1.0 and s["hover_error_m"] < 0.02
     lines = robust_table({"protocol": {"lee": s}})
     assert lines[-1].startswith("| protocol | 1.00, ") and "cm" in lines[-1]
-    assert set(SUITES) >= {"protocol", "harsh", "any", "ground", "mass +30%", "wind 1 N"}
+    assert set(CONDITIONS) >= {"protocol", "harsh", "any", "ground", "mass +30%", "wind 1 N"}

@@ -12,13 +12,18 @@ from tensordict import TensorDict
 from torch.distributions import Normal, kl_divergence
 
 from bfc import keys
-from bfc.policy import load_policy, make_actor, make_critic
+from bfc.agent import GaussianActor, load_policy, make_critic, torchrl_actor
 from bfc.training import train
 from bfc.training.trpo import TRPO, conjugate_gradient
 
 from .helpers import ROOT, TINY, compose_cfg
 
-ALGO_TINY = ["algo.warmup_frames=512", "algo.updates_per_batch=4", "algo.batch_size=64", "algo.buffer_size=4096"]
+ALGO_TINY = [
+    "algo.ddpg.warmup_frames=512",
+    "algo.ddpg.updates_per_batch=4",
+    "algo.ddpg.batch_size=64",
+    "algo.ddpg.buffer_size=4096",
+]
 
 
 def test_conjugate_gradient_solves_a_positive_definite_system():
@@ -35,11 +40,11 @@ def test_trpo_step_stays_within_its_kl_bound_and_improves_the_surrogate(max_kl):
     """A small problem: 5 observations -> 4 actions, advantages that reward one direction of the
     action. Every step must keep the mean KL(old || new) <= max_kl, measured independently, and
     raise the surrogate; a larger bound must allow a larger move."""
-    cfg = compose_cfg(["algo=trpo", f"algo.max_kl={max_kl}"])
+    cfg = compose_cfg(["algo=trpo", f"algo.trpo.max_kl={max_kl}"])
     torch.manual_seed(0)
-    actor = make_actor(5, [16], "tanh", 0.3)
+    actor = torchrl_actor(GaussianActor(5, [16], "tanh", 0.3))
     trpo = TRPO(cfg, actor, make_critic(5, [8]))
-    head = trpo.head
+    head = trpo.net
     obs = torch.randn(2048, 5)
     moves = []
     for _ in range(3):
@@ -64,13 +69,14 @@ def test_trpo_step_stays_within_its_kl_bound_and_improves_the_surrogate(max_kl):
 
 
 def test_ddpg_target_networks_follow_with_tau():
-    cfg = compose_cfg(["algo=ddpg", *TINY, *ALGO_TINY, "algo.tau=0.1", "algo.updates_per_batch=1"])
+    cfg = compose_cfg(["algo=ddpg", *TINY, *ALGO_TINY, "algo.ddpg.tau=0.1", "algo.ddpg.updates_per_batch=1"])
     from bfc.training.ddpg import DDPG
-    from bfc.training.ppo import make_models
 
     torch.manual_seed(0)
-    actor, critic = make_models(cfg, 7)
-    ddpg = DDPG(cfg, actor, critic)
+    m = cfg.model
+    net = GaussianActor(7, m.actor_hidden, m.activation, m.init_std, squash=m.squash)
+    actor = torchrl_actor(net)
+    ddpg = DDPG(cfg, actor, make_critic(7, m.critic_hidden, m.activation))
     loss = ddpg.loss_module
     n = 600
     data = TensorDict(
@@ -99,7 +105,7 @@ def test_ddpg_target_networks_follow_with_tau():
             torch.testing.assert_close(target.get(key), expected)
         assert any(not torch.equal(before.get(k), target.get(k)) for k in before.keys(True, True))
     # the exploration std is DDPG's fixed noise: not trained
-    assert not actor.module[0].module.log_std.requires_grad
+    assert not net.log_std.requires_grad
 
 
 @pytest.mark.parametrize("algo", ["trpo", "ddpg"])
@@ -116,8 +122,8 @@ def test_tiny_run_of_each_algorithm_writes_tags_and_a_policy_evaluate_flies(algo
     tags = set(ea.Tags()["scalars"])
     assert {"loss/critic", "eval/success_rate", "train/episode_return", "time/fps"} <= tags
     assert ({"loss/objective", "loss/approx_kl"} if algo == "trpo" else {"loss/actor", "loss/q_value"}) <= tags
-    actor, payload = load_policy(tmp_path / "run" / "policy.pt")
-    assert payload["model"]["squash"] == (algo == "ddpg")
+    spec, _ = load_policy(tmp_path / "run" / "policy.pt")
+    assert spec.squash == (algo == "ddpg")
     if ablation == "ppo":  # one CLI evaluation per algorithm is enough
         r = subprocess.run(
             [

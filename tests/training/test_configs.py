@@ -40,27 +40,37 @@ def test_each_ablation_switches_exactly_what_its_name_says(name):
     assert cfg == plain
 
 
-def test_robust_extras_are_on_by_default_and_off_for_the_paper_variants():
-    """The default = the paper's BFC + conf/extras/robust.yaml; extras=none is the paper's BFC:
-    every other key equal, with the schema's (paper) values for what the extras change."""
+def test_the_schema_is_what_the_default_runs_and_extras_none_the_paper_variants():
+    """`python train.py` runs the schema's defaults (conf/config.yaml and extras=robust add
+    nothing); extras=none is the paper's BFC: the robust extras off, every other key equal."""
     from omegaconf import OmegaConf
 
     from bfc.config import Config
 
     robust, plain = compose_cfg(), compose_cfg(["extras=none"])
     schema = OmegaConf.structured(Config)
+    assert robust == schema  # the defaults list adds nothing to the schema
+    assert len(OmegaConf.load(ROOT / "conf" / "extras" / "robust.yaml") or {}) == 0  # comments only
     assert plain.variant == "jd_css_tdts" and plain == compose_cfg(["+ablation=jd_css_tdts"])
     assert robust.model.position_integral and not plain.model.position_integral
     assert tuple(robust.env.randomize.mass) == (0.7, 1.3) and robust.env.randomize.external_force == 1.0
-    assert plain.env.randomize == schema.env.randomize and plain.jd == schema.jd and plain.optim == schema.optim
-    assert robust.curriculum.frames > 0 and plain.curriculum == schema.curriculum and plain.curriculum.frames == 0
-    assert robust.env.reward.angular_velocity < plain.env.reward.angular_velocity == schema.env.reward.angular_velocity
+    assert tuple(plain.env.randomize.mass) == (1.0, 1.0) and plain.env.randomize.external_force == 0.0
+    assert robust.curriculum.frames > 0 and plain.curriculum.frames == 0
+    assert robust.env.reward.angular_velocity == 0.001 and plain.env.reward.angular_velocity == 0.005
     assert list(robust.model.actor_hidden) == [128, 128] and list(plain.model.actor_hidden) == [64, 64]
-    assert robust.loss.epochs == 3 and plain.loss == schema.loss
+    assert robust.loss.epochs == 3 and plain.loss.epochs == 4
+    assert robust.jd.p_end == 0.75 and plain.jd.p_end == 0.0 and list(plain.jd.roll_range) == [-60.0, 60.0]
     changed = {k for k in robust if robust[k] != plain[k]}
     assert changed == {"variant", "model", "env", "jd", "curriculum", "optim", "loss"}
     # an ablation variant can still take them on explicitly
     assert compose_cfg(["+ablation=jd", "extras=robust"]).model.position_integral
+
+
+@pytest.mark.parametrize("algo", ["ppo", "trpo", "ddpg"])
+def test_every_algo_file_is_global_and_names_its_algorithm(algo):
+    text = (ROOT / "conf" / "algo" / f"{algo}.yaml").read_text()
+    assert text.startswith("# @package _global_")
+    assert compose_cfg([f"algo={algo}"]).algo.name == algo
 
 
 def test_validate_names_the_key():
@@ -79,25 +89,46 @@ def run_cli(*args):
     )
 
 
+def one_line_error(r) -> str:
+    assert r.returncode == 2, r.stderr[-2000:]
+    lines = r.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("error: "), r.stderr[-2000:]
+    return lines[0]
+
+
 def test_unknown_key_fails():
-    r = run_cli("env.num_env=3")
-    assert r.returncode != 0 and "num_env" in r.stderr
+    assert "unknown config key 'env.num_env'; env has: num_envs" in one_line_error(run_cli("env.num_env=3"))
 
 
 def test_unknown_ablation_lists_the_valid_ones():
-    r = run_cli("+ablation=jd_css_tdtss")
-    assert r.returncode != 0
-    assert "jd_css_tdts" in r.stderr and "ppo" in r.stderr
+    line = one_line_error(run_cli("+ablation=jd_css_tdtss"))
+    assert "ablation=jd_css_tdtss is not a config of conf/ablation/" in line and "jd_css_tdts" in line
+
+
+@pytest.mark.parametrize(
+    ("override", "moved_to"),
+    [
+        ("algo.max_kl=0.02", "algo.trpo.max_kl"),
+        ("algo.tau=0.1", "algo.ddpg.tau"),
+        ("eval.seed=3", "eval.validation_seed"),
+        ("+algo.warmup_frames=7", "algo.ddpg.warmup_frames"),
+    ],
+)
+def test_a_moved_key_fails_with_its_new_spelling(override, moved_to):
+    line = one_line_error(run_cli(override))
+    assert line == f"error: {override.lstrip('+').split('=')[0]} has moved: it is {moved_to} now"
+
+
+def test_bad_override_syntax_is_one_line():
+    assert "cannot parse the overrides" in one_line_error(run_cli("env.goal=[0,0"))
 
 
 def test_negative_frames_fail_with_a_clear_message():
-    r = run_cli("collector.total_frames=-5")
-    assert r.returncode != 0 and "collector.total_frames must be > 0" in r.stderr
+    assert "collector.total_frames must be > 0" in one_line_error(run_cli("collector.total_frames=-5"))
 
 
 def test_missing_resume_dir_fails_cleanly():
-    r = run_cli("resume=/nonexistent/run")
-    assert r.returncode != 0 and "no checkpoints/last.pt" in r.stderr
+    assert "no checkpoints/last.pt" in one_line_error(run_cli("resume=/nonexistent/run"))
 
 
 def test_paper_preset_sets_exactly_what_it_says():

@@ -6,10 +6,9 @@ from tensordict import TensorDict
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 
 from bfc import keys
+from bfc.agent import GaussianActor, PolicySpec, SamplingActor, make_critic, torchrl_actor
 from bfc.config import compose
-from bfc.factory import find_transform, make_env
-from bfc.policy import SamplingActor, make_actor
-from bfc.transforms import PolicyObservation
+from bfc.factory import make_env
 
 
 def assert_same(a: TensorDict, b: TensorDict) -> None:
@@ -46,10 +45,11 @@ def test_fused_partial_reset_equals_torchrl_reset(overrides):
 
 
 def test_sampling_actor_equals_the_probabilistic_actor():
-    actor = make_actor(25, [32, 32])
+    net = GaussianActor(25, [32, 32])
+    actor = torchrl_actor(net)
     with torch.no_grad():
-        actor.module[0].module.log_std.copy_(torch.tensor([-1.0, -0.5, 0.0, 0.3]))
-    fast = SamplingActor(actor)
+        net.log_std.copy_(torch.tensor([-1.0, -0.5, 0.0, 0.3]))
+    fast = SamplingActor(net)
     obs = torch.randn(64, 25, generator=torch.Generator().manual_seed(1))
     for exploration in (ExplorationType.RANDOM, ExplorationType.DETERMINISTIC):
         outs = []
@@ -64,40 +64,35 @@ def test_sampling_actor_equals_the_probabilistic_actor():
 
 def test_sampling_actor_shares_the_actors_weights(cfg):
     env = make_env(cfg, num_envs=4, seed=0)
-    actor = make_actor(find_transform(env, PolicyObservation).size, [16, 16])
-    fast = SamplingActor(actor)
+    net = PolicySpec.from_config(cfg).make_net()
+    actor, fast = torchrl_actor(net), SamplingActor(net)
     with torch.no_grad():
-        actor.module[0].module.mean[0].weight.add_(1.0)  # an optimizer step on the actor
+        net.mlp[0].weight.add_(1.0)  # an optimizer step on the actor
     td = env.reset()
     with set_exploration_type(ExplorationType.DETERMINISTIC), torch.no_grad():
         assert torch.equal(fast(td.clone()).get(keys.ACTION), actor(td.clone()).get(keys.ACTION))
     env.close()
 
 
-def test_a_collector_checkpoint_that_held_the_actor_itself_still_loads(cfg):
-    from bfc.collectors import make_collector
-
-    env = make_env(cfg, num_envs=4, seed=0)
-    actor = make_actor(find_transform(env, PolicyObservation).size, [16, 16])
-    collector = make_collector(env, SamplingActor(actor), frames_per_batch=8, total_frames=8)
-    state = collector.state_dict()
-    old = {k.replace("head.", "module.0.module.", 1): v.clone() + 1 for k, v in state["policy_state_dict"].items()}
-    collector.load_state_dict({**state, "policy_state_dict": old})  # the names before SamplingActor
-    assert torch.equal(actor.module[0].module.log_std, old["module.0.module.log_std"])
-    collector.shutdown()
-    env.close()
+def _models(cfg, env):
+    spec = PolicySpec.from_config(cfg)
+    net = spec.make_net()
+    critic = make_critic(spec.observation_size, cfg.model.critic_hidden, cfg.model.activation)
+    return net, torchrl_actor(net, env.action_spec), critic
 
 
-@pytest.mark.parametrize("entropy_coeff", [0.0, 0.01])
-def test_fused_clip_loss_equals_clip_ppo_loss(cfg, entropy_coeff):
-    """The fused loss gives ClipPPOLoss's values bit for bit, and its gradients, on the same minibatch."""
-    from bfc.training.ppo import FusedClipLoss, compute_advantage, make_loss, make_models
+@pytest.mark.parametrize(("entropy_coeff", "critic_loss"), [(0.0, "l2"), (0.01, "l2"), (0.0, "l1"), (0.0, "smooth_l1")])
+def test_fused_clip_loss_equals_clip_ppo_loss(cfg, entropy_coeff, critic_loss):
+    """The fused loss gives ClipPPOLoss's values bit for bit, and its gradients, on the same
+    minibatch, for every critic loss the config names (loss.critic_loss)."""
+    from bfc.training.advantage import compute_advantage
+    from bfc.training.ppo import FusedClipLoss, make_loss
 
-    cfg.loss.entropy_coeff = entropy_coeff
+    cfg.loss.entropy_coeff, cfg.loss.critic_loss = entropy_coeff, critic_loss
     env = make_env(cfg, num_envs=16, seed=0)
-    actor, critic = make_models(cfg, find_transform(env, PolicyObservation).size, env.action_spec)
+    net, actor, critic = _models(cfg, env)
     with torch.no_grad():
-        actor.module[0].module.log_std.copy_(torch.tensor([-1.5, -1.0, -2.0, -1.2]))
+        net.log_std.copy_(torch.tensor([-1.5, -1.0, -2.0, -1.2]))
         data = env.rollout(40, actor, break_when_any_done=False)
         for p in actor.parameters():  # the policy moved since it acted: ratios away from 1, some clipped
             p.add_(0.05 * torch.randn_like(p))
@@ -123,4 +118,17 @@ def test_fused_clip_loss_equals_clip_ppo_loss(cfg, entropy_coeff):
         grads.append([p.grad.clone() for p in loss.parameters()])
     for a, b in zip(*grads, strict=True):
         torch.testing.assert_close(a, b, rtol=1e-5, atol=1e-9)  # the entropy term sums in another order
+    env.close()
+
+
+def test_the_fused_loss_refuses_what_it_does_not_compute(cfg):
+    from torchrl.objectives import ClipPPOLoss
+
+    from bfc.training.ppo import FusedClipLoss
+
+    env = make_env(cfg, num_envs=2, seed=0)
+    _, actor, critic = _models(cfg, env)
+    loss = ClipPPOLoss(actor, critic, clip_value=0.2, normalize_advantage=True)
+    with pytest.raises(ValueError, match="does not implement ClipPPOLoss's clip_value"):
+        FusedClipLoss(loss, actor, critic)
     env.close()

@@ -23,8 +23,7 @@ def test_one_million_frames_learn_to_stay_aloft_and_approach_the_goal(tmp_path):
     untrained, trained = summary["history"][0], summary["history"][-1]
     assert untrained["frames"] == 0 and trained["frames"] >= 1_000_000
     # the untrained policy (about hover thrust, no attitude control) crashes from the protocol's
-    # tilted starts; after ~1M frames (about a minute here) the policy recovers and approaches
-    assert untrained["eval/crash_rate"] > 0.8, untrained
+    # tilted starts; after ~1M frames (about a minute here) the policy recovers and holds the goal
+    assert untrained["eval/crash_rate"] > 0.8 and untrained["eval/success_rate"] < 0.1, untrained
     assert trained["eval/crash_rate"] < 0.3, trained
-    assert trained["eval/position_error"] < 0.5 * untrained["eval/position_error"], (untrained, trained)
-    assert trained["eval/position_error"] < 1.0, trained
+    assert trained["eval/success_rate"] >= 0.5 and trained["eval/hover_error"] < 0.05, trained

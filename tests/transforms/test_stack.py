@@ -2,6 +2,7 @@
 
 import pytest
 import torch
+from tensordict import TensorDict
 from torchrl.envs.utils import check_env_specs
 
 from bfc import keys
@@ -167,11 +168,17 @@ def test_position_integral_accumulates_near_the_goal_clips_and_restarts_per_env(
     starts[0, 5] = torch.pi / 2  # yawed by 90 deg: the world +x error is the heading frame's -y
     find_transform(env, GivenStarts).set_starts(starts)
     td = env.reset()
-    assert (obs.integral == 0).all()
+    goal = env.base_env.goal
+
+    def near_error(td):
+        error = td[keys.POSITION] - goal
+        return torch.where(error.norm(dim=-1, keepdim=True) < obs.integral_radius, error * obs.dt, 0.0)
+
+    first = near_error(td)  # from the first odometry on: the integral includes the current error
+    torch.testing.assert_close(obs.integral, first)
     hover = torch.zeros(3, 4)
     td = env.step(td.set(keys.ACTION, hover))["next"]
-    error = td[keys.POSITION] - env.base_env.goal
-    expected = torch.where(error.norm(dim=-1, keepdim=True) < obs.integral_radius, error * obs.dt, 0.0)
+    expected = first + near_error(td)
     torch.testing.assert_close(obs.integral, expected)
     assert obs.integral[2].abs().sum() == 0 and obs.integral[0, 0] > 0 and obs.integral[1, 2] < 0
     seen = td[keys.OBSERVATION][:, 22:25] / obs.integral_scale
@@ -179,11 +186,42 @@ def test_position_integral_accumulates_near_the_goal_clips_and_restarts_per_env(
         seen[0], torch.stack((0 * expected[0, 0], -expected[0, 0], expected[0, 2])), atol=1e-6, rtol=0
     )
     # clipped at the limit however long an error lasts
-    odometry, goal, integral = torch.zeros(1, 18), torch.zeros(1, 3), torch.zeros(1, 3)
+    odometry, zero, integral = torch.zeros(1, 18), torch.zeros(1, 3), torch.zeros(1, 3)
     odometry[0, 0:3] = torch.tensor([0.2, -0.1, 0.0])
     for _ in range(1000):
-        integral = obs.integrate(integral, odometry, goal)
+        integral = obs.integrate(integral, odometry, zero)
     assert integral.tolist() == [[obs.integral_limit, -obs.integral_limit, 0.0]]
     before = obs.integral.clone()
-    env.reset(td.clone().set("_reset", torch.tensor([[True], [False], [False]])))
-    assert (obs.integral[0] == 0).all() and torch.equal(obs.integral[1:], before[1:])
+    env.reset(td.clone().set("_reset", torch.tensor([[True], [False], [False]])))  # env 0 back at its start
+    assert torch.equal(obs.integral[0], first[0]) and torch.equal(obs.integral[1:], before[1:])
+
+
+def test_a_start_state_given_to_reset_is_honoured_by_the_sampled_stack():
+    """`make_env(cfg).reset(TensorDict(start_state=...))` places the envs exactly, as the base env
+    does, whatever JD and CSS would have drawn; NaN entries are still the samplers' (or D's), and a
+    partial reset moves only the envs it names."""
+    from bfc.config import compose
+    from bfc.envs.rotations import quat_to_euler
+
+    env = make_env(compose(["env.num_envs=4"]), seed=0)  # the default: JD, CSS, TDTS, randomisation
+    start = torch.zeros(4, 12)
+    start[:, 0:3] = torch.tensor([[0.5, -0.5, 1.0], [1.0, 1.0, 2.0], [-1.0, 0.0, 0.7], [0.0, 0.3, 1.2]])
+    start[:, 3:6] = torch.tensor([0.3, -0.2, 1.0])
+    start[:, 6:9] = torch.tensor([0.5, 0.0, -0.2])
+    td = env.reset(TensorDict({keys.START_STATE: start}, batch_size=[4]))
+    torch.testing.assert_close(td[keys.POSITION], start[:, 0:3])
+    torch.testing.assert_close(quat_to_euler(td[keys.QUATERNION]), start[:, 3:6], atol=1e-5, rtol=0)
+    torch.testing.assert_close(td[keys.LINEAR_VELOCITY], start[:, 6:9])
+    assert td[keys.OBSERVATION].shape == (4, 25)
+    # NaN: drawn (here x, y by CSS); an env outside "_reset" stays where it is
+    partial = start.clone()
+    partial[:, 0:2] = float("nan")
+    partial[:, 2] = 2.5
+    mask = torch.tensor([[True], [True], [False], [False]])
+    out = env.reset(TensorDict({keys.START_STATE: partial, "_reset": mask}, batch_size=[4]))
+    assert (out[keys.POSITION][:2, 2] == 2.5).all() and not torch.equal(out[keys.POSITION][:2, :2], start[:2, :2])
+    assert out[keys.POSITION][:2, :2].abs().max() <= 2.0  # CSS's area
+    torch.testing.assert_close(env.base_env.observe()[2:, 0:3], start[2:, 0:3])  # the others where they were
+    with pytest.raises(ValueError, match=r"start_state must have shape \(4, 12\)"):
+        env.reset(TensorDict({keys.START_STATE: torch.zeros(4, 11)}, batch_size=[4]))
+    env.close()

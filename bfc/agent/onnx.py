@@ -1,0 +1,282 @@
+"""The ONNX export of a policy file, and `OnnxController` to fly the exported model.
+
+The graph is the deterministic actor (the Gaussian mean, no sampling) with the observation and
+action maps inside it, so a deployer feeds it raw sensor numbers and gets motor speeds:
+
+    inputs   odometry               (N, 18) float32, the env's odometry layout (bfc/keys.py)
+             goal                   (N, 3)  float32, m, world frame
+             previous_motor_speeds  (N, 4)  float32, rad/s: the command the graph output at the
+                                            previous control step; the hover speed after a reset
+             position_error_integral (N, 3) float32, m s, world frame: only for policies trained
+                                            with `model.position_integral`; the graph's own
+                                            `next_position_error_integral` of the previous step,
+                                            zeros after a reset
+    output   motor_speeds           (N, 4)  float32, rad/s, clipped to [0, max_rotor_speed]
+             next_position_error_integral (N, 3): with the integral input only
+
+The batch axis N is dynamic. The model's metadata_props record the control rate (`control_hz`),
+`hover_speed`, `max_rotor_speed`, `action_map` and the policy format; see docs/export.md.
+Everything comes from the file's PolicySpec, and the maths is not re-written here: the module
+calls `PolicyObservation.build` and `MotorSpeedAction.to_action` / `to_command`, the code the env
+runs in training and evaluation. Needs the `onnx` extra: pip install -e ".[onnx]".
+"""
+
+from __future__ import annotations
+
+import io
+import warnings
+from pathlib import Path
+
+import numpy as np
+import torch
+from tensordict import TensorDictBase
+from tensordict.nn import TensorDictModuleBase
+from torch import nn
+
+from bfc import keys
+from bfc.agent.actor import GaussianActor
+from bfc.agent.policy_file import POLICY_FORMAT, load_policy
+from bfc.agent.spec import PolicySpec
+from bfc.transforms import MotorSpeedAction, PolicyObservation
+
+ONNX_FORMAT = "bfc-onnx-v1"
+INPUTS = ("odometry", "goal", "previous_motor_speeds")
+OUTPUT = "motor_speeds"
+INTEGRAL_INPUT, INTEGRAL_OUTPUT = "position_error_integral", "next_position_error_integral"
+ODOMETRY_LAYOUT = (
+    "0:3 position (m, world), 3:6 linear velocity (m/s, world), 6:9 linear acceleration (m/s^2, world), "
+    "9:12 roll, pitch, yaw (rad, ZYX), 12:15 angular velocity (rad/s, body), "
+    "15:18 angular acceleration (rad/s^2, body)"
+)
+MOTOR_ORDER = "0 front (+x) CW, 1 left (+y) CCW, 2 back (-x) CW, 3 right (-y) CCW"
+_INSTALL_HINT = 'ONNX export needs the onnx extra: pip install -e ".[onnx]"'
+
+
+class PolicyExportModule(nn.Module):
+    """(odometry, goal, previous_motor_speeds) -> motor_speeds (rad/s): the deterministic actor
+    with the env's observation map before it and its action map and motor clip after it."""
+
+    def __init__(self, net: GaussianActor, observation: PolicyObservation, action: MotorSpeedAction):
+        super().__init__()
+        self.net = net
+        # The maps' methods, not the transforms: only the network's weights belong in the graph
+        # (a transform's buffers and extra state, such as a generator, do not).
+        self.build_observation = observation.build
+        self.integrate = observation.integrate if observation.position_integral else None
+        self.to_action = action.to_action
+        self.to_command = action.to_command
+        self.max_speed = action.max_speed
+
+    def forward(
+        self,
+        odometry: torch.Tensor,
+        goal: torch.Tensor,
+        previous_motor_speeds: torch.Tensor,
+        position_error_integral: torch.Tensor | None = None,
+    ):
+        # exactly what PolicyObservation._step keeps as the previous action (and integral)
+        last_action = self.to_action(previous_motor_speeds).clamp(-1, 1)
+        integral = None
+        if self.integrate is not None:
+            integral = self.integrate(position_error_integral, odometry, goal)
+        loc = self.net.mean(self.build_observation(odometry, goal, last_action, integral))
+        speeds = self.to_command(loc).clamp(0.0, self.max_speed)  # the env's clip (QuadrotorEnv._step)
+        return speeds if integral is None else (speeds, integral)
+
+
+def export_module(policy_path) -> tuple[PolicyExportModule, PolicySpec]:
+    """(the torch module the ONNX graph is traced from, the file's spec)."""
+    spec, net = load_policy(policy_path)
+    module = PolicyExportModule(net, spec.make_observation_map(1), spec.make_action_map()).eval()
+    return module, spec
+
+
+def _import_onnx():
+    try:
+        import onnx
+    except ImportError as err:
+        raise ImportError(f"{_INSTALL_HINT} ({err})") from None
+    return onnx
+
+
+def export_onnx(policy_path, onnx_path, opset: int | None = None) -> Path:
+    """Write the deterministic policy of `policy_path` (a policy.pt) as an ONNX model at `onnx_path`.
+
+    opset: the ONNX opset (None: the exporter's default, 20 with torch 2.13). Uses torch's
+    TorchScript exporter (`dynamo=False`): it needs no onnxscript and exports in 0.2 s.
+    Raises FileNotFoundError / ValueError for a missing or foreign policy file and OSError when
+    `onnx_path` cannot be written. Returns the path written (written atomically).
+    """
+    onnx = _import_onnx()
+    onnx_path = Path(onnx_path)
+    if onnx_path.is_dir():
+        raise IsADirectoryError(f"the output path {onnx_path} is a directory: give a file name such as policy.onnx")
+    blocking = next((p for p in onnx_path.parents if p.exists() and not p.is_dir()), None)
+    if blocking is not None:
+        raise NotADirectoryError(f"cannot write {onnx_path}: {blocking} is a file, not a directory")
+    if opset is not None and (not isinstance(opset, int) or opset < 11):
+        raise ValueError(f"opset must be an int >= 11 (Clip with bounds as inputs), got {opset!r}")
+    module, spec = export_module(policy_path)
+    airframe = spec.nominal_airframe
+    n = 2  # any batch size: the batch axis is exported as dynamic
+    example = (torch.zeros(n, 18), torch.zeros(n, 3), torch.full((n, 4), airframe.hover_speed))
+    inputs, outputs = list(INPUTS), [OUTPUT]
+    if spec.position_integral:
+        example += (torch.zeros(n, 3),)
+        inputs.append(INTEGRAL_INPUT)
+        outputs.append(INTEGRAL_OUTPUT)
+    buffer = io.BytesIO()
+    with warnings.catch_warnings():  # the TorchScript exporter is deprecated in favour of dynamo (onnxscript)
+        warnings.simplefilter("ignore")
+        torch.onnx.export(
+            module,
+            example,
+            buffer,
+            input_names=inputs,
+            output_names=outputs,
+            dynamic_axes={name: {0: "batch"} for name in (*inputs, *outputs)},
+            opset_version=opset,
+            dynamo=False,
+        )
+    model = onnx.load_from_string(buffer.getvalue())
+    model.producer_name = "bfc"
+    model.doc_string = (
+        "bfc deterministic quadrotor policy: (odometry (N,18), goal (N,3) m, previous_motor_speeds (N,4) rad/s) "
+        "-> motor_speeds (N,4) rad/s in [0, max_rotor_speed]. Run it at control_hz; feed back its own output "
+        "as previous_motor_speeds, hover_speed after a reset"
+        + (
+            "; feed back next_position_error_integral as position_error_integral, zeros after a reset"
+            if spec.position_integral
+            else ""
+        )
+        + ". See docs/export.md."
+    )
+    metadata = {
+        "bfc_onnx_format": ONNX_FORMAT,
+        "policy_format": POLICY_FORMAT,
+        "control_hz": repr(spec.control_hz),
+        "hover_speed": repr(airframe.hover_speed),
+        "max_rotor_speed": repr(airframe.max_rotor_speed),
+        "action_map": spec.action_map,
+        "include_acceleration": str(spec.include_acceleration).lower(),
+        "position_integral": str(spec.position_integral).lower(),
+        "observation": spec.observation,
+        "odometry_layout": ODOMETRY_LAYOUT,
+        "motor_order": MOTOR_ORDER,
+        "source": Path(policy_path).name,
+    }
+    for key, value in metadata.items():
+        entry = model.metadata_props.add()
+        entry.key, entry.value = key, value
+    onnx.checker.check_model(model)
+    tmp = onnx_path.with_name(onnx_path.name + ".tmp")
+    try:
+        onnx_path.parent.mkdir(parents=True, exist_ok=True)
+        onnx.save(model, tmp)
+        tmp.replace(onnx_path)
+    except OSError as err:
+        raise OSError(f"cannot write the ONNX model to {onnx_path}: {err.strerror or err}") from err
+    finally:
+        if tmp.parent.is_dir():
+            tmp.unlink(missing_ok=True)
+    return onnx_path
+
+
+def read_metadata(onnx_path) -> dict:
+    """The bfc metadata of an exported model, with numbers as floats and flags as bools."""
+    onnx = _import_onnx()
+    model = onnx.load(str(onnx_path), load_external_data=False)
+    return _parse_metadata({p.key: p.value for p in model.metadata_props}, onnx_path)
+
+
+def _parse_metadata(meta: dict, onnx_path) -> dict:
+    if meta.get("bfc_onnx_format") != ONNX_FORMAT:
+        raise ValueError(f"{onnx_path} is not a bfc ONNX policy (expected bfc_onnx_format {ONNX_FORMAT!r})")
+    out = dict(meta)
+    for key in ("control_hz", "hover_speed", "max_rotor_speed"):
+        out[key] = float(meta[key])
+    out["include_acceleration"] = meta.get("include_acceleration") == "true"
+    out["position_integral"] = meta.get("position_integral") == "true"
+    return out
+
+
+class OnnxController(TensorDictModuleBase):
+    """Flies an exported policy with onnxruntime: reads `"odometry"` and `"goal"`, writes `"action"`
+    (motor speeds, rad/s), and feeds its own last command back as `previous_motor_speeds` (and,
+    for a policy with a position integral, its own `next_position_error_integral`).
+
+    `fly(OnnxController(path), starts, control_hz=controller.control_hz)` flies it as trained.
+    The previous command starts at the hover speed (the env's zero previous action) for every env:
+    (and the integral at zero)
+    - at the first call, and at any call whose batch size differs from the stored state;
+    - after `reset()` (also called by `begin_flight()`, which flight runners call before a flight);
+    - per env, where the input carries TorchRL's `"is_init"` (InitTracker) or `"step_count" == 0`
+      (StepCounter), i.e. for envs an auto-resetting runner has just reset.
+    A caller that flies two flights of the same size in a row through its own loop calls `reset()`.
+    threads: onnxruntime intra-op threads (1: the model is tiny, and MuJoCo owns the cores).
+    """
+
+    def __init__(self, onnx_path, threads: int = 1):
+        super().__init__()
+        try:
+            import onnxruntime as ort
+        except ImportError as err:
+            raise ImportError(f"{_INSTALL_HINT} ({err})") from None
+        self.in_keys = [keys.ODOMETRY, keys.GOAL]
+        self.out_keys = [keys.ACTION]
+        options = ort.SessionOptions()
+        options.intra_op_num_threads = int(threads)
+        options.inter_op_num_threads = 1
+        self.path = Path(onnx_path)
+        if not self.path.is_file():
+            raise FileNotFoundError(f"no ONNX model at {self.path}: write one with python -m bfc.export")
+        self.session = ort.InferenceSession(str(self.path), options, providers=["CPUExecutionProvider"])
+        self.metadata = _parse_metadata(self.session.get_modelmeta().custom_metadata_map, self.path)
+        self.control_hz = self.metadata["control_hz"]
+        self.hover_speed = self.metadata["hover_speed"]
+        self.max_rotor_speed = self.metadata["max_rotor_speed"]
+        self.previous_motor_speeds: np.ndarray | None = None
+        self.integral: np.ndarray | None = None
+
+    def reset(self) -> None:
+        """Forget the previous command: the next call starts every env from hover."""
+        self.previous_motor_speeds = None
+        self.integral = None
+
+    def begin_flight(self) -> None:
+        self.reset()
+
+    def _reset_mask(self, td: TensorDictBase) -> np.ndarray | None:
+        if "is_init" in td.keys():
+            return td.get("is_init").reshape(-1).cpu().numpy().astype(bool)
+        if "step_count" in td.keys():
+            return (td.get("step_count").reshape(-1) == 0).cpu().numpy()
+        return None
+
+    def forward(self, td: TensorDictBase) -> TensorDictBase:
+        odometry = td.get(keys.ODOMETRY)
+        goal = td.get(keys.GOAL)
+        n = odometry.shape[0]
+        goal = goal.expand(n, 3) if goal.ndim == 1 else goal
+        previous, integral = self.previous_motor_speeds, self.integral
+        if previous is None or previous.shape[0] != n:
+            previous = np.full((n, 4), self.hover_speed, dtype=np.float32)
+            integral = np.zeros((n, 3), dtype=np.float32)
+        mask = self._reset_mask(td)
+        if mask is not None and mask.any():
+            previous, integral = previous.copy(), integral.copy()
+            previous[mask] = self.hover_speed
+            integral[mask] = 0.0
+        feeds = {
+            "odometry": odometry.detach().cpu().numpy().astype(np.float32, copy=False),
+            "goal": goal.detach().cpu().numpy().astype(np.float32, copy=False),
+            "previous_motor_speeds": previous,
+        }
+        if self.metadata["position_integral"]:
+            feeds[INTEGRAL_INPUT] = integral
+            speeds, integral = self.session.run([OUTPUT, INTEGRAL_OUTPUT], feeds)
+        else:
+            (speeds,) = self.session.run([OUTPUT], feeds)
+        self.previous_motor_speeds, self.integral = speeds, integral
+        td.set(keys.ACTION, torch.from_numpy(speeds.copy()).to(odometry.device))
+        return td

@@ -1,0 +1,13 @@
+"""The one argument check every room uses: a ValueError that names the config key and what is allowed.
+
+A leaf module (like bfc.keys): the env, the transforms and the config all import it, and it
+imports nothing from bfc.
+"""
+
+from __future__ import annotations
+
+
+def check(cond: bool, key: str, allowed: str, value) -> None:
+    """Raise `ValueError("<key> must be <allowed>, got <value>")` unless `cond`."""
+    if not cond:
+        raise ValueError(f"{key} must be {allowed}, got {value!r}")

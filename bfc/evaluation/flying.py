@@ -1,0 +1,104 @@
+"""`fly`: any controller (a policy file, a classical controller by name, a TensorDictModule) flown
+from given starts, in the env its kind needs (bfc.factory.make_flight_env), through `run_flights`.
+
+Training never imports this module (it would bring the classical controllers and their solvers).
+"""
+
+from __future__ import annotations
+
+import torch
+from tensordict import TensorDict
+from tensordict.nn import TensorDictModuleBase
+
+from bfc.agent import load_policy
+from bfc.envs import REFERENCE_PHYSICS_DT, AirframeParams
+from bfc.evaluation.flights import run_flights
+from bfc.factory import make_flight_env
+
+
+def is_module(controller) -> bool:
+    return isinstance(controller, (TensorDictModuleBase, torch.nn.Module))
+
+
+def _goal_schedule(goal, dt: float):
+    """`goal` as (3,) or as [(time_s, (x, y, z)), ...]: -> (first goal, [(step, goal), ...])."""
+    g = list(goal)
+    if len(g) == 3 and all(isinstance(v, (int, float)) for v in g):
+        return torch.tensor(g, dtype=torch.float32), None
+    try:
+        sched = [(round(float(t) / dt), torch.tensor([float(v) for v in xyz])) for t, xyz in g]
+    except (TypeError, ValueError):
+        raise ValueError("goal must be (x, y, z) or a list of (time_seconds, (x, y, z)) waypoints") from None
+    if not sched or sched[0][0] != 0 or any(w.shape != (3,) for _, w in sched):
+        raise ValueError("a waypoint schedule must start at time 0 and give (x, y, z) for each waypoint")
+    return sched[0][1], sched
+
+
+PROTOCOL_HZ = 250.0  # the paper's control rate, for controllers that do not record their own
+
+
+def fly(
+    controller,
+    starts,
+    goal=(0.0, 0.0, 1.5),
+    seconds: float = 10.0,
+    noise=None,
+    seed: int = 0,
+    control_hz=None,
+    airframe: dict | None = None,
+    external_force=None,
+    physics_dt: float = REFERENCE_PHYSICS_DT,
+) -> TensorDict:
+    """Fly all `starts` (n, 12) at once for `seconds`, never resetting mid-flight.
+
+    controller: a policy.pt path (flown as its PolicySpec says: its maps, its control rate, its
+    nominal airframe), a controller name registered in `CONTROLLERS`, or a TensorDictModule
+    reading `"odometry"`/`"goal"` and writing `"action"` in rad/s (flown at `control_hz`, default
+    250 Hz as in the paper).
+    goal: (x, y, z) or waypoints [(time_s, (x, y, z)), ...]. noise: a `noise` config section, e.g.
+    {"kind": "ou", "std": 0.05, "elements": "position"}; it corrupts only what the controller sees.
+    airframe: AirframeParams fields of the flown body, e.g. {"body_mass": 0.884} (model mismatch):
+    a classical controller keeps the nominal model it was built for, a policy its own maps.
+    external_force: a constant force in newtons, world frame, (3,) or one per start (n, 3).
+    physics_dt: MuJoCo's step, the reference 0.002 s by default, whatever step a policy was
+    trained with (its control rate is its own).
+    Returns a TensorDict (n, T); see `run_flights`.
+    """
+    from bfc.controllers import CONTROLLERS
+
+    starts = torch.as_tensor(starts, dtype=torch.float32)
+    if starts.ndim != 2 or starts.shape[1] != 12:
+        raise ValueError(f"starts must have shape (n, 12), got {tuple(starts.shape)}")
+    if seconds <= 0:
+        raise ValueError(f"seconds must be > 0, got {seconds}")
+    spec, name = None, None
+    if isinstance(controller, (str, bytes)) and str(controller) in CONTROLLERS:
+        name = str(controller)
+    elif is_module(controller):
+        pass
+    elif isinstance(controller, (str, bytes)) or hasattr(controller, "__fspath__"):
+        spec, controller = load_policy(controller)
+    else:
+        allowed = f"a policy.pt path, one of {sorted(CONTROLLERS)} or a TensorDictModule"
+        raise ValueError(f"controller must be {allowed}, got {controller!r}")
+    rate = None if spec is not None and control_hz is None else float(control_hz or PROTOCOL_HZ)
+    env = make_flight_env(
+        starts.shape[0],
+        policy=spec,
+        control_hz=rate,
+        physics_dt=float(physics_dt),
+        seconds=seconds + 1.0,
+        airframe=airframe,
+        noise=noise,
+        seed=seed,
+    )
+    try:
+        if external_force is not None:
+            env.base_env.set_external_force(external_force)
+        if name is not None:  # built for the nominal airframe, whatever body it flies
+            controller = CONTROLLERS[name](AirframeParams(), env.base_env.dt)
+        first, schedule = _goal_schedule(goal, env.base_env.dt)
+        env.base_env.set_goal(first)
+        return run_flights(env, controller, starts, round(seconds / env.base_env.dt), goal_schedule=schedule)
+    finally:
+        env.close()

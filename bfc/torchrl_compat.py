@@ -1,0 +1,36 @@
+"""The one module that reaches past TorchRL's public API (written against torchrl 0.14).
+
+bfc needs two things TorchRL keeps private:
+- the Collector's in-flight tensordict (`Collector._carrier`): the observations, episode sums and
+  step counts the next step starts from. A checkpoint that resumes bit-identically after a kill
+  must hold it, and TorchRL's own `state_dict()` does not.
+- a replay buffer's writer state (`ReplayBuffer._writer`): where the next transition goes. DDPG's
+  checkpoint stores the filled part of its storage and this, not the whole preallocated storage
+  that `ReplayBuffer.state_dict()` would write (1M transitions).
+tests/test_torchrl_compat.py fails if a TorchRL upgrade moves either.
+"""
+
+from __future__ import annotations
+
+from tensordict import TensorDictBase
+
+TORCHRL_VERSIONS = "0.14"  # the versions these reaches were written and tested against
+
+
+def collector_carrier(collector) -> TensorDictBase:
+    """The tensordict TorchRL's Collector steps from next (updated in place as it collects)."""
+    return collector._carrier
+
+
+def load_collector_carrier(collector, state: dict) -> None:
+    """Put a saved carrier (`collector_carrier(...).to_dict()`) back into a Collector."""
+    carrier = collector._carrier
+    carrier.update(type(carrier).from_dict(state, batch_size=carrier.batch_size))
+
+
+def buffer_writer_state(buffer) -> dict:
+    return buffer._writer.state_dict()
+
+
+def load_buffer_writer_state(buffer, state: dict) -> None:
+    buffer._writer.load_state_dict(state)
