@@ -21,7 +21,7 @@ import torch
 from bfc.config import TestProtocolConfig
 from bfc.controllers import LeeController, LeeGains, LinearMPC, MPCParams
 from bfc.envs import AirframeParams
-from bfc.evaluation.flights import PROTOCOL_HZ
+from bfc.evaluation.flying import PROTOCOL_HZ
 from bfc.evaluation.report import controller_sections
 
 ROOT = Path(__file__).resolve().parents[1]
