@@ -99,7 +99,7 @@ class TDTSConfig:
 @dataclass
 class CurriculumConfig:
     """Widen JD's attitude and velocity ranges and env.randomize from `start` (a fraction of
-    them) to all of them over the first `frames` frames (bfc/training/curriculum.py); 0: off
+    them) to all of them over the first `frames` frames (bfc/collectors/curriculum.py); 0: off
     (extras=none)."""
 
     frames: int = 2_000_000
@@ -142,6 +142,9 @@ class CollectorConfig:
     # fused: bfc's collector (the same batches as TorchRL's, bfc's transforms only); torchrl:
     # TorchRL's Collector over the TransformedEnv (any transform stack). docs/training.md, "Collectors"
     kind: str = "torchrl"
+    # 0: collect in the learner's process, between updates; 1: in a worker process that collects
+    # the next batch while the learner updates (the policy one update behind)
+    workers: int = 0
 
 
 @dataclass
@@ -440,6 +443,7 @@ def validate(cfg) -> None:
         c.frames_per_batch,
     )
     check(c.kind in COLLECTORS, "collector.kind", " or ".join(COLLECTORS), c.kind)
+    check(c.workers in (0, 1), "collector.workers", "0 (in the learner's process) or 1 (one worker process)", c.workers)
     lo = cfg.loss
     check(lo.kind in ("clip", "kl"), "loss.kind", "'clip' or 'kl'", lo.kind)
     check(lo.critic_loss in CRITIC_LOSSES, "loss.critic_loss", ", ".join(CRITIC_LOSSES), lo.critic_loss)

@@ -5,7 +5,7 @@ import torchrl
 from tensordict import TensorDict
 from torchrl.data import LazyTensorStorage, TensorDictReplayBuffer
 
-from bfc.agent import PolicySpec, SamplingActor
+from bfc.agent import PolicySpec
 from bfc.collectors import make_collector
 from bfc.config import compose
 from bfc.factory import make_env
@@ -26,7 +26,7 @@ def test_the_carrier_is_the_tensordict_the_next_step_starts_from():
     cfg = compose(["extras=none"])
     env = make_env(cfg, num_envs=4, seed=0)
     net = PolicySpec.from_config(cfg).make_net()
-    collector = make_collector(env, SamplingActor(net), frames_per_batch=8, total_frames=16)
+    collector = make_collector(env, net, frames_per_batch=8, total_frames=16)
     batch = next(iter(collector))
     carrier = collector_carrier(collector)
     # after the batch, the carrier holds the observation the last step ended in (or its reset)

@@ -1,5 +1,17 @@
-"""Building the TorchRL Collector over the env, and rollout/episode statistics."""
+"""Collection: TorchRL's Collector (resumable), bfc's fused collector that gives the same batches,
+the collection the runner iterates (the env, its curriculum and a collector, here or in a worker
+process) and per-batch episode statistics."""
 
+from bfc.collectors.collection import AsyncCollection, LocalCollection, make_collection
 from bfc.collectors.collector import ResumableCollector, episode_stats, make_collector
+from bfc.collectors.fused import FusedCollector
 
-__all__ = ["ResumableCollector", "episode_stats", "make_collector"]
+__all__ = [
+    "AsyncCollection",
+    "FusedCollector",
+    "LocalCollection",
+    "ResumableCollector",
+    "episode_stats",
+    "make_collection",
+    "make_collector",
+]

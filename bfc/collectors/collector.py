@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import torch
 from tensordict import TensorDictBase
 from torchrl.collectors import Collector
 
@@ -29,18 +30,33 @@ class ResumableCollector(Collector):
         load_collector_carrier(self, state_dict["carrier"])
 
 
-def make_collector(env, policy, frames_per_batch: int, total_frames: int) -> ResumableCollector:
-    """A synchronous collector: batches of shape (num_envs, frames_per_batch / num_envs)."""
-    return ResumableCollector(
-        env,
-        policy,
-        frames_per_batch=frames_per_batch,
-        total_frames=total_frames,
-        device="cpu",
-        split_trajs=False,
-        track_traj_ids=False,
-        auto_register_policy_transforms=False,
-    )
+def make_collector(env, net, frames_per_batch: int, total_frames: int, kind: str = "torchrl"):
+    """The collector `collector.kind` names over `env`, flying the policy network `net`: batches of
+    shape (num_envs, frames_per_batch / num_envs). "torchrl": TorchRL's synchronous Collector
+    (`ResumableCollector`, through `SamplingActor`); "fused": `FusedCollector`, the same batches.
+    Either way torch's global generator is left as it was found: TorchRL's Collector draws from it
+    while it is built, and runs of both kinds must start collecting from the same state."""
+    from bfc.agent import SamplingActor
+    from bfc.collectors.fused import FusedCollector
+
+    rng = torch.get_rng_state()
+    if kind == "fused":
+        collector = FusedCollector(env, net, frames_per_batch, total_frames)
+    elif kind == "torchrl":
+        collector = ResumableCollector(
+            env,
+            SamplingActor(net),
+            frames_per_batch=frames_per_batch,
+            total_frames=total_frames,
+            device="cpu",
+            split_trajs=False,
+            track_traj_ids=False,
+            auto_register_policy_transforms=False,
+        )
+    else:
+        raise ValueError(f"collector.kind must be fused or torchrl, got {kind!r}")
+    torch.set_rng_state(rng)
+    return collector
 
 
 def episode_stats(data: TensorDictBase) -> dict[str, float]:

@@ -248,7 +248,7 @@ class QuadrotorEnv(EnvBase):
         self.start_params = _as(StartParams, start)
         self.randomize = _as(RandomizeParams, randomize)
         # How much of the `randomize` ranges is drawn from, in [0, 1]: a training curriculum
-        # (bfc.training.curriculum) widens it from a start fraction to 1; ranges shrink towards 1
+        # (bfc.collectors.curriculum) widens it from a start fraction to 1; ranges shrink towards 1
         # (the nominal airframe) and the wind towards 0. Set between batches, never mid-episode.
         self.randomize_scale = 1.0
         self.control_hz = float(control_hz)
@@ -478,15 +478,22 @@ class QuadrotorEnv(EnvBase):
             if keys.RESET in tensordict.keys():
                 mask = tensordict.get(keys.RESET).reshape(n).to(torch.bool)
             given = tensordict.get(keys.START_STATE, None)
+        none = torch.zeros(n, dtype=torch.bool)
+        return self.pack(self.restart(mask, given), none, none.clone(), reward=False)
+
+    def restart(self, mask: torch.Tensor, start_state: torch.Tensor | None = None) -> torch.Tensor:
+        """New episodes for the envs in `mask` (N,) bool, at `start_state` (N, 12) where it is not
+        NaN and from the task distribution D elsewhere: what `reset()` runs, returning the outputs
+        (N, 30) of every env (FLAT_* layout)."""
+        n = self.num_envs
         start = self.sample_default_starts()
-        if given is not None:
-            if given.shape != (n, 12):
-                raise ValueError(f"start_state must have shape ({n}, 12), got {tuple(given.shape)}")
-            given = given.to(torch.float64)
+        if start_state is not None:
+            if start_state.shape != (n, 12):
+                raise ValueError(f"start_state must have shape ({n}, 12), got {tuple(start_state.shape)}")
+            given = start_state.to(torch.float64)
             start = torch.where(torch.isnan(given), start, given)
         self.place(start, mask)
-        none = torch.zeros(n, dtype=torch.bool)
-        return self.pack(self.observe(), none, none.clone(), reward=False)
+        return self.observe()
 
     def place(self, start: torch.Tensor, mask: torch.Tensor) -> None:
         """Write starts (N, 12) into the envs selected by the boolean `mask` (N,).

@@ -28,25 +28,22 @@ import torch
 from omegaconf import OmegaConf
 
 from bfc import keys
-from bfc.agent import PolicySpec, SamplingActor, atomic_save, make_critic, save_policy, torchrl_actor
-from bfc.collectors import episode_stats, make_collector
+from bfc.agent import PolicySpec, atomic_save, make_critic, save_policy, torchrl_actor
+from bfc.collectors import episode_stats, make_collection
 from bfc.evaluation.evaluator import ProtocolEvaluator
-from bfc.factory import find_transform, make_env
-from bfc.training.curriculum import Curriculum
 from bfc.training.learners import make_learner
-from bfc.transforms import ControlledStartingState, JumpingDistribution, TimeDependentTerminalState
 
 PAPER_SUCCESS = 0.905
 CHECKPOINT = Path("checkpoints") / "last.pt"
 PREVIOUS = Path("checkpoints") / "previous.pt"
 
 
-def css_figure(css: ControlledStartingState):
-    """The CSS square values as a heat map (a pyplot-free Figure, for TensorBoard)."""
+def css_figure(grid, r: float):
+    """The CSS square values (grid, grid) over [-r, r]^2 as a heat map (a pyplot-free Figure, for
+    TensorBoard)."""
     from bfc.evaluation.plots import subplots
 
-    grid = css.value_grid.numpy()
-    r = css.xy_range
+    grid = grid.numpy()
     fig, ax = subplots(figsize=(4, 3.4))
     im = ax.imshow(grid, origin="lower", extent=(-r, r, -r, r), cmap="viridis")
     ax.set_xlabel("x (m)")
@@ -117,22 +114,17 @@ class Runner:
         self.cfg, self.run_dir = cfg, Path(run_dir)
         self.run_dir.mkdir(parents=True, exist_ok=True)
         torch.manual_seed(cfg.seed)
-        self.env = make_env(cfg, seed=cfg.seed)
         self.spec = PolicySpec.from_config(cfg)
         self.net = self.spec.make_net()  # the policy: what policy.pt stores
-        self.actor = torchrl_actor(self.net, action_spec=self.env.action_spec)  # TorchRL's view of it
+        self.actor = torchrl_actor(self.net)  # TorchRL's view of it
         m = cfg.model
         self.critic = make_critic(self.spec.observation_size, m.critic_hidden, m.activation)
         self.learner = make_learner(cfg, self.actor, self.critic)
-        self.jd = find_transform(self.env, JumpingDistribution)
-        self.css = find_transform(self.env, ControlledStartingState)
-        self.tdts = find_transform(self.env, TimeDependentTerminalState)
-        self.curriculum = Curriculum(cfg, self.env, self.jd)
-        self.curriculum.apply(0)  # before the collector's first reset
-        self.evaluator = ProtocolEvaluator(cfg)
         fpb = int(cfg.collector.frames_per_batch)
         self.total = -(-int(cfg.collector.total_frames) // fpb) * fpb  # whole batches
-        self.collector = make_collector(self.env, SamplingActor(self.net), fpb, self.total)
+        # the env, its curriculum and the collector (here, or in a worker process)
+        self.collection = make_collection(cfg, self.net, self.total)
+        self.evaluator = ProtocolEvaluator(cfg)
         self.frames, self.batches, self.wall = 0, 0, 0.0
         self.history: list[dict] = []
         self.best, self.best_error = -1.0, math.inf
@@ -152,7 +144,7 @@ class Runner:
             "actor": self.actor.state_dict(),
             "critic": self.critic.state_dict(),
             **self.learner.state_dict(),
-            "collector": self.collector.state_dict(),
+            "collector": self.collection.state_dict(),
             "torch_rng": torch.get_rng_state(),
         }
 
@@ -172,7 +164,7 @@ class Runner:
             self.frames, self.batches, self.wall = int(ckpt["frames"]), int(ckpt["batches"]), float(ckpt["wall"])
             self.history, self.best = list(ckpt["history"]), float(ckpt["best"])
             self.best_error = float(ckpt["best_error"])
-            self.collector.load_state_dict(ckpt["collector"])
+            self.collection.load_state_dict(ckpt["collector"])
         except (KeyError, RuntimeError, ValueError) as err:
             first = str(err).strip().splitlines()[0][:200] if str(err).strip() else type(err).__name__
             raise ValueError(
@@ -257,9 +249,8 @@ class Runner:
         if ckpt is None and e.at_start:
             last_success = self.evaluate()["eval/success_rate"]  # the untrained policy, at frame 0
 
-        self.curriculum.apply(self.frames)
         t_batch = time.perf_counter()
-        for data in self.collector:
+        for data in self.collection:
             t_collected = time.perf_counter()
             metrics = self._update(data)
             t_updated = time.perf_counter()
@@ -271,8 +262,9 @@ class Runner:
             if self.frames >= next_eval or self.frames >= self.total:
                 last_success = self.evaluate()["eval/success_rate"]
                 next_eval = next_evaluation(self.frames, e)
-                if self.css is not None and self.logger is not None:
-                    self.logger.experiment.add_figure("css/square_values", css_figure(self.css), self.frames)
+                css = self.collection.css_values()
+                if css is not None and self.logger is not None:
+                    self.logger.experiment.add_figure("css/square_values", css_figure(*css), self.frames)
                 self.stopped_early = self.frames < self.total and self.should_stop()
             if self.frames >= next_ckpt or self.frames >= self.total or self.stopped_early:
                 self.save()
@@ -281,7 +273,6 @@ class Runner:
                 progress.update(n)
                 progress.set_postfix(fps=f"{metrics['time/fps']:.0f}", success=f"{last_success:.2f}", refresh=False)
             torch.set_num_threads(1)  # collection: MuJoCo's threads get the cores
-            self.curriculum.apply(self.frames)  # the next batch's world
             t_batch = time.perf_counter()
             if self.frames >= self.total or self.stopped_early:
                 break
@@ -303,7 +294,7 @@ class Runner:
                     group["lr"] = group["initial_lr"] * factor
         metrics = self.learner.update(data)
         metrics["train/lr"] = self.learner.optimizers[0].param_groups[0]["lr"]
-        self.collector.update_policy_weights_()
+        self.collection.update_policy_weights_()
         return metrics
 
     def _batch_metrics(self, data, t_batch: float, t_collected: float, t_updated: float) -> dict:
@@ -318,11 +309,7 @@ class Runner:
         self.timing["batches"] += 1
         metrics["time/wall_seconds"] = self.wall
         metrics["train/policy_std"] = self.net.log_std.exp().mean().item()
-        metrics["train/physics_failures"] = float(self.env.base_env.physics_failures)
-        metrics["train/jd_probability"] = self.jd.probability if self.jd is not None else 0.0
-        if self.tdts is not None:
-            metrics["train/tdts_fired"] = float(self.tdts.fired)
-        metrics["train/curriculum"] = self.curriculum.scale(self.frames - n)  # the batch just collected
+        metrics.update(self.collection.stats())  # the world of the batch just collected
         return metrics
 
     def _finish(self) -> dict:
@@ -352,8 +339,7 @@ class Runner:
         return summary
 
     def close(self) -> None:
-        self.collector.shutdown()
-        self.env.close()
+        self.collection.close()
         self.evaluator.close()
 
 

@@ -65,15 +65,21 @@ class StartSampler(BatchedTransform):
         n = self.num_envs
         if tensordict is None:
             tensordict = TensorDict({}, batch_size=[n])
-        given = tensordict.get(keys.START_STATE, None)
-        start = torch.full((n, 12), float("nan"))
-        self.fill_starts(start, reset_mask(tensordict, n))
-        if given is not None:
-            if given.shape != (n, 12):
-                raise ValueError(f"start_state must have shape ({n}, 12), got {tuple(given.shape)}")
-            start = torch.where(torch.isnan(given), start, given.to(start.dtype))
+        start = self.draw_starts(reset_mask(tensordict, n), tensordict.get(keys.START_STATE, None))
         tensordict.set(keys.START_STATE, start)
         return tensordict
+
+    def draw_starts(self, mask: torch.Tensor, given: torch.Tensor | None = None) -> torch.Tensor:
+        """(n, 12) starts for the envs in `mask`: `given`'s entries where they are not NaN, this
+        sampler's draws where they are (NaN where neither: the env draws those from D)."""
+        n = self.num_envs
+        start = torch.full((n, 12), float("nan"))
+        self.fill_starts(start, mask)
+        if given is None:
+            return start
+        if given.shape != (n, 12):
+            raise ValueError(f"start_state must have shape ({n}, 12), got {tuple(given.shape)}")
+        return torch.where(torch.isnan(given), start, given.to(start.dtype))
 
     def fill_starts(self, start: torch.Tensor, mask: torch.Tensor) -> None:
         """Write this sampler's entries of `start` (n, 12) for the envs in `mask`, in place."""

@@ -73,7 +73,7 @@ class JumpingDistribution(StartSampler):
         self.register_buffer("low", torch.tensor(lows))
         self.register_buffer("high", torch.tensor(highs))
         # How much of the attitude and velocity ranges is drawn from (about their centres), in
-        # [0, 1]: a training curriculum (bfc.training.curriculum) widens it to 1. Height and yaw
+        # [0, 1]: a training curriculum (bfc.collectors.curriculum) widens it to 1. Height and yaw
         # always take their whole ranges.
         self.range_scale = 1.0
         # Share of in-air starts mirrored upside down (tilt -> 180 deg - tilt), times `inverted_scale`

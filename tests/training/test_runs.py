@@ -72,10 +72,20 @@ def _assert_same_checkpoint(a, b):
     assert results(a["history"]) == results(b["history"])
 
 
-def test_resumed_run_ends_like_an_uninterrupted_one(tmp_path):
+def _env_state(ckpt: dict) -> dict:
+    collection = ckpt["collector"]
+    collection = collection["worker"]["collection"] if "worker" in collection else collection
+    return collection["collector"]["env_state_dict"]
+
+
+@pytest.mark.parametrize(
+    "collector", [["collector.kind=torchrl"], ["collector.kind=fused"], ["collector.kind=fused", "collector.workers=1"]]
+)
+def test_resumed_run_ends_like_an_uninterrupted_one(tmp_path, collector):
     # JD's schedule and the learning-rate anneal follow collector.total_frames: pin them, since the
     # "killed" run is a shorter one
     overrides = [
+        *collector,
         *TINY,
         "collector.total_frames=4096",
         "jd.decay_frames=4096",
@@ -93,7 +103,7 @@ def test_resumed_run_ends_like_an_uninterrupted_one(tmp_path):
     a = torch.load(full / "checkpoints" / "last.pt", weights_only=True)
     b = torch.load(part / "checkpoints" / "last.pt", weights_only=True)
     assert resumed["frames"] == a["frames"] == b["frames"] == 4096
-    env_state = a["collector"]["env_state_dict"]
+    env_state = _env_state(a)
     # the checkpoint holds the base env's state (physics, motors, generator) beside the transforms'
     assert {"physics", "motor", "goal", "generator"} <= set(env_state["base_env._extra_state"])
     assert any(k.endswith(".frames") for k in env_state) and any(k.endswith(".values") for k in env_state)

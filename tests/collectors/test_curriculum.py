@@ -6,11 +6,10 @@ import pytest
 import torch
 
 from bfc import keys
+from bfc.collectors.curriculum import Curriculum
 from bfc.factory import find_transform, make_env
-from bfc.training.curriculum import Curriculum
 from bfc.transforms import JumpingDistribution
-
-from .helpers import compose_cfg
+from tests.training.helpers import compose_cfg
 
 WIDE = [
     "extras=none",
@@ -59,20 +58,20 @@ def test_starts_and_airframes_widen_with_the_scale():
 
 def test_a_resumed_run_flies_the_curriculum_where_it_left_off(tmp_path):
     from bfc.training.runner import Runner
-
-    from .helpers import TINY
+    from tests.training.helpers import TINY
 
     cfg = compose_cfg([*TINY, "curriculum.frames=4096", "curriculum.start=0.5"])
     runner = Runner(cfg, tmp_path)
-    assert runner.env.base_env.randomize_scale == 0.5 and runner.jd.range_scale == 0.5
-    assert runner.jd.inverted_scale == 0.0  # JD's upside-down share grows with the progress
-    runner.learn()  # 2048 frames
-    assert runner.jd.range_scale == pytest.approx(0.75) and runner.jd.inverted_scale == pytest.approx(0.5)
+    world = runner.collection
+    assert world.env.base_env.randomize_scale == 0.5 and world.jd.range_scale == 0.5
+    assert world.jd.inverted_scale == 0.0  # JD's upside-down share grows with the progress
+    runner.learn()  # 2048 frames: the last batch started at 1536 (scale 0.6875)
+    assert world.jd.range_scale == pytest.approx(0.6875) and world.jd.inverted_scale == pytest.approx(0.375)
     runner.close()
     resumed = Runner(
         compose_cfg([*TINY, "collector.total_frames=4096", "curriculum.frames=4096", "curriculum.start=0.5"]), tmp_path
     )
     resumed.load(torch.load(tmp_path / "checkpoints" / "last.pt", weights_only=True))
-    resumed.curriculum.apply(resumed.frames)
-    assert resumed.jd.range_scale == pytest.approx(0.75) and resumed.jd.inverted_scale == pytest.approx(0.5)
+    world = resumed.collection  # where the next batch (from 2048) is flown
+    assert world.jd.range_scale == pytest.approx(0.75) and world.jd.inverted_scale == pytest.approx(0.5)
     resumed.close()

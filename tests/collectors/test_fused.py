@@ -1,0 +1,129 @@
+"""The fused collector gives TorchRL's Collector's batches, bit for bit, on the same env and seed."""
+
+import pytest
+import torch
+from torchrl.envs import TransformedEnv
+
+from bfc.agent import PolicySpec
+from bfc.collectors import FusedCollector, make_collector
+from bfc.config import compose
+from bfc.factory import make_env
+
+
+def collect(kind: str, overrides, batches: int = 8, seed: int = 3):
+    cfg = compose(["env.num_envs=24", "env.episode_seconds=0.2", *overrides])
+    env = make_env(cfg, seed=seed)
+    torch.manual_seed(seed)
+    net = PolicySpec.from_config(cfg).make_net()
+    with torch.no_grad():  # spread the actions: some drones crash, some hover to TDTS, episodes end all the time
+        net.log_std.fill_(-0.5)
+    fpb = 24 * 8
+    collector = make_collector(env, net, fpb, fpb * batches, kind=kind)
+    out = [b.clone() for b in collector]
+    collector.shutdown()
+    state = env.state_dict()
+    env.close()
+    return out, state
+
+
+@pytest.mark.parametrize(
+    "overrides",
+    [
+        [],  # the default: JD at any attitude, CSS, TDTS (truncated), randomisation, the integral
+        ["extras=none", "noise.kind=gaussian", "noise.std=0.02"],  # the paper's BFC, noise drawn at resets too
+        ["extras=none", "noise.kind=ou", "tdts.as_terminal=true", "css.enabled=false"],
+        ["+preset=paper", "+ablation=jd_tdts"],  # 250 Hz, odometry in, the speed map
+    ],
+)
+def test_fused_batches_equal_torchrl_collectors(overrides):
+    fused, fused_state = collect("fused", overrides)
+    reference, reference_state = collect("torchrl", overrides)
+    ends = 0
+    for a, b in zip(fused, reference, strict=True):
+        assert a.batch_size == b.batch_size
+        assert set(a.keys(True, True)) == set(b.keys(True, True))
+        for key in b.keys(True, True):
+            assert a.get(key).dtype == b.get(key).dtype, key
+            assert torch.equal(a.get(key), b.get(key)), key
+        ends += int(b.get(("next", "done")).sum())
+    assert ends > 20  # resets happened, inside batches and at their edges
+    # and the env (physics, generators, every transform's buffers) ends in the same state
+    assert fused_state.keys() == reference_state.keys()
+    for key, value in reference_state.items():
+        if isinstance(value, torch.Tensor):
+            assert torch.equal(fused_state[key], value), key
+
+
+def test_the_fused_collector_refuses_a_transform_it_does_not_know():
+    from torchrl.envs import ObservationNorm
+
+    cfg = compose(["env.num_envs=4"])
+    env = make_env(cfg, seed=0)
+    env = TransformedEnv(env.base_env, env.transform.clone())
+    env.append_transform(ObservationNorm(loc=0.0, scale=1.0, in_keys=["odometry"]))
+    with pytest.raises(ValueError, match="ObservationNorm needs collector.kind=torchrl"):
+        FusedCollector(env, PolicySpec.from_config(cfg).make_net(), 8, 8)
+
+
+def test_the_collector_kind_is_checked_and_leaves_torchs_generator_alone():
+    cfg = compose(["env.num_envs=4"])
+    env = make_env(cfg, seed=0)
+    net = PolicySpec.from_config(cfg).make_net()
+    with pytest.raises(ValueError, match="collector.kind must be fused or torchrl, got 'ray'"):
+        make_collector(env, net, 8, 8, kind="ray")
+    for kind in ("fused", "torchrl"):
+        torch.manual_seed(0)
+        make_collector(env, net, 8, 8, kind=kind).shutdown()
+        assert torch.equal(torch.get_rng_state(), torch.manual_seed(0).get_state())
+    env.close()
+
+
+def test_a_run_learns_the_same_through_either_collector(tmp_path):
+    """Training through the fused collector is training through TorchRL's, bit for bit: the same
+    weights, optimizer state and evaluations at the end."""
+    from bfc.training import train
+    from tests.training.helpers import TINY, compose_cfg
+
+    runs = {}
+    for kind in ("fused", "torchrl"):
+        summary = train(compose_cfg([*TINY, f"collector.kind={kind}", "env.episode_seconds=0.3"]), tmp_path / kind)
+        runs[kind] = (summary, torch.load(tmp_path / kind / "checkpoints" / "last.pt", weights_only=True))
+    (a, ckpt_a), (b, ckpt_b) = runs["fused"], runs["torchrl"]
+    for part in ("actor", "critic"):
+        for key, value in ckpt_b[part].items():
+            assert torch.equal(ckpt_a[part][key], value), (part, key)
+    assert [h["eval/success_rate"] for h in a["history"]] == [h["eval/success_rate"] for h in b["history"]]
+    assert torch.equal(ckpt_a["torch_rng"], ckpt_b["torch_rng"])
+
+
+def test_a_worker_process_collects_while_the_learner_updates(tmp_path):
+    """collector.workers=1: batches of the documented shape from the worker process, each flown
+    one update behind (batches 0 and 1 with the initial weights, batch i with those after i - 1
+    updates), a policy that loads and flies; the worker process is gone afterwards."""
+    import copy
+    import multiprocessing
+
+    from bfc.evaluation import fly, protocol_starts
+    from bfc.training.runner import Runner
+    from tests.training.helpers import TINY, compose_cfg
+
+    runner = Runner(compose_cfg([*TINY, "collector.kind=fused", "collector.workers=1"]), tmp_path)
+    weights = [copy.deepcopy(runner.net)]  # weights[v]: after v updates
+    for i, batch in enumerate(runner.collection):
+        assert tuple(batch.batch_size) == (16, 32)
+        flown = weights[max(0, i - 1)]
+        with torch.no_grad():
+            torch.testing.assert_close(batch.get("loc"), flown.mean(batch.get("observation")), rtol=0, atol=0)
+        runner.learner.update(batch)
+        runner.collection.update_policy_weights_()
+        weights.append(copy.deepcopy(runner.net))
+        if i == 3:
+            break
+    assert not torch.equal(weights[0].mlp[0].weight, weights[3].mlp[0].weight)  # it learned something
+    runner.close()
+    assert not [p for p in multiprocessing.active_children() if p.name == "bfc-collector"]
+    from bfc.training import train
+
+    summary = train(compose_cfg([*TINY, "collector.kind=fused", "collector.workers=1"]), tmp_path / "run")
+    assert summary["frames"] == 2048
+    assert fly(tmp_path / "run" / "policy.pt", protocol_starts(2), seconds=0.2).shape == (2, 20)
