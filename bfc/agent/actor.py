@@ -57,8 +57,9 @@ class GaussianActor(nn.Module):
         return loc, self.log_std.exp().expand_as(loc)
 
     def mean(self, obs: torch.Tensor) -> torch.Tensor:
-        """The deterministic action: the Gaussian's mean."""
-        return self(obs)[0]
+        """The deterministic action: the Gaussian's mean (`forward`'s loc, without the scale)."""
+        loc = self.mlp(obs)
+        return loc.tanh() if self.squash else loc
 
     def sample(self, obs: torch.Tensor):
         """(action, log_prob, loc, scale): a draw from torch's global generator, as

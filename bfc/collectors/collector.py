@@ -1,33 +1,12 @@
-"""TorchRL's Collector over the batched env, resumable, and per-batch episode statistics."""
+"""`make_collector`: the collector `collector.kind` names (TorchRL's, resumable, or bfc's fused one
+that gives the same batches), and per-batch episode statistics."""
 
 from __future__ import annotations
 
 import torch
 from tensordict import TensorDictBase
-from torchrl.collectors import Collector
 
 from bfc import keys
-from bfc.torchrl_compat import collector_carrier, load_collector_carrier
-
-
-class ResumableCollector(Collector):
-    """TorchRL's synchronous Collector whose `state_dict()` is a whole snapshot of collection.
-
-    TorchRL's own state dict holds the transforms' state, the policy and the frame counter; a run
-    that must resume bit-identically after a kill also needs the base env (physics, motors,
-    generators: `BFCEnv.state_dict`) and the in-flight tensordict the next step starts from
-    (current observations, episode sums and step counts; bfc.torchrl_compat).
-    """
-
-    def state_dict(self):
-        sd = super().state_dict()
-        sd["env_state_dict"] = self.env.state_dict()
-        sd["carrier"] = collector_carrier(self).to_dict()
-        return sd
-
-    def load_state_dict(self, state_dict, **kwargs) -> None:
-        super().load_state_dict(state_dict, **kwargs)
-        load_collector_carrier(self, state_dict["carrier"])
 
 
 def make_collector(env, net, frames_per_batch: int, total_frames: int, kind: str = "torchrl"):
@@ -43,6 +22,8 @@ def make_collector(env, net, frames_per_batch: int, total_frames: int, kind: str
     if kind == "fused":
         collector = FusedCollector(env, net, frames_per_batch, total_frames)
     elif kind == "torchrl":
+        from bfc.collectors.torchrl_collector import ResumableCollector
+
         collector = ResumableCollector(
             env,
             SamplingActor(net),

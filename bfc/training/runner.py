@@ -38,20 +38,19 @@ CHECKPOINT = Path("checkpoints") / "last.pt"
 PREVIOUS = Path("checkpoints") / "previous.pt"
 
 
-def css_figure(grid, r: float):
-    """The CSS square values (grid, grid) over [-r, r]^2 as a heat map (a pyplot-free Figure, for
-    TensorBoard)."""
-    from bfc.evaluation.plots import subplots
-
-    grid = grid.numpy()
-    fig, ax = subplots(figsize=(4, 3.4))
-    im = ax.imshow(grid, origin="lower", extent=(-r, r, -r, r), cmap="viridis")
-    ax.set_xlabel("x (m)")
-    ax.set_ylabel("y (m)")
-    ax.set_title("CSS square values (mean reward)")
-    fig.colorbar(im, ax=ax)
-    fig.tight_layout()
-    return fig
+def css_image(grid: torch.Tensor, pixels: int = 16) -> torch.Tensor:
+    """CSS's square values (grid, grid), rows = y from -xy_range up, as a grey (1, H, W) image for
+    TensorBoard: the lowest value black, the highest white, never-visited squares mid-grey, y up.
+    Made without a plotting library, so training never imports one."""
+    v = grid.clone()
+    seen = ~torch.isnan(v)
+    if bool(seen.any()):
+        lo, hi = v[seen].min(), v[seen].max()
+        v = torch.where(seen, (v - lo) / (hi - lo).clamp_min(1e-12), 0.5)
+    else:
+        v = torch.full_like(v, 0.5)
+    v = v.flip(0).repeat_interleave(pixels, 0).repeat_interleave(pixels, 1)
+    return v.unsqueeze(0)
 
 
 def hparams(cfg) -> dict:
@@ -181,7 +180,7 @@ class Runner:
         if self.logger is not None:
             for k, v in metrics.items():
                 if isinstance(v, (int, float)) and math.isfinite(v):
-                    self.logger.log_scalar(k, v, step=step)
+                    self.logger.add_scalar(k, v, global_step=step)
 
     def evaluate(self) -> dict:
         """The protocol on the validation starts; keeps policy.pt as the best so far."""
@@ -230,12 +229,14 @@ class Runner:
         else:
             self.load(ckpt)
         if cfg.logger.tensorboard:
-            from torchrl.record.loggers.tensorboard import TensorboardLogger
+            # torch's SummaryWriter, which TorchRL's TensorboardLogger wraps (importing it alone
+            # saves TorchRL's record package's 0.4 s of start-up); events go to <run dir>/tb
+            from torch.utils.tensorboard import SummaryWriter
 
-            self.logger = TensorboardLogger(exp_name="tb", log_dir=str(run_dir))
+            self.logger = SummaryWriter(log_dir=str(run_dir / "tb"))
             if ckpt is None:
                 text = "```\n" + OmegaConf.to_yaml(cfg, resolve=True) + "\n```"
-                self.logger.experiment.add_text("config", text, 0)
+                self.logger.add_text("config", text, 0)
 
         progress = None
         if cfg.logger.progress:
@@ -249,6 +250,7 @@ class Runner:
         if ckpt is None and e.at_start:
             last_success = self.evaluate()["eval/success_rate"]  # the untrained policy, at frame 0
 
+        self.collecting_since = time.time()  # unix seconds: start-up ends here (bench/startup.py)
         t_batch = time.perf_counter()
         for data in self.collection:
             t_collected = time.perf_counter()
@@ -264,7 +266,7 @@ class Runner:
                 next_eval = next_evaluation(self.frames, e)
                 css = self.collection.css_values()
                 if css is not None and self.logger is not None:
-                    self.logger.experiment.add_figure("css/square_values", css_figure(*css), self.frames)
+                    self.logger.add_image("css/square_values", css_image(css[0]), self.frames)
                 self.stopped_early = self.frames < self.total and self.should_stop()
             if self.frames >= next_ckpt or self.frames >= self.total or self.stopped_early:
                 self.save()
@@ -325,6 +327,7 @@ class Runner:
             "first_reached_0.905": self.first_reach(PAPER_SUCCESS),
             "first_reached_0.99": self.first_reach(0.99),
             "stopped_early": self.stopped_early,
+            "collecting_since_unix_seconds": round(self.collecting_since, 3),
             "collection_frames_per_second": round(
                 self.timing["batches"] * cfg.collector.frames_per_batch / max(self.timing["collect_seconds"], 1e-9)
             ),
@@ -334,11 +337,13 @@ class Runner:
         (run_dir / "summary.json").write_text(json.dumps(summary, indent=1))
         if self.logger is not None:
             final = {"hparam/success_rate": summary["final_success_rate"] or 0.0, "hparam/best_success_rate": self.best}
-            self.logger.experiment.add_hparams(hparams(cfg), final, run_name="hparams")
-            self.logger.experiment.flush()
+            self.logger.add_hparams(hparams(cfg), final, run_name="hparams")
+            self.logger.flush()
         return summary
 
     def close(self) -> None:
+        if self.logger is not None:
+            self.logger.close()
         self.collection.close()
         self.evaluator.close()
 

@@ -1,0 +1,62 @@
+"""Start-up: how long `python train.py` takes before its first training frame, and how much of
+it is bfc's own (everything after `import torch, torchrl, mujoco`).
+
+    python bench/startup.py [--rounds 3] [-- train.py overrides]
+
+Each round launches `python train.py collector.total_frames=<one batch> ...` and reads
+`collecting_since_unix_seconds` from its summary.json; a second interpreter times
+`import torch, torchrl, mujoco` alone. Prints the medians, and which heavy optional packages
+(plotting, SciPy, OSQP, ONNX) a training process imported (it should import none).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+LIBRARIES = "import time; t = time.perf_counter(); import torch, torchrl, mujoco; print(time.perf_counter() - t)"
+PROBE = (
+    "import runpy, sys; sys.argv = ['train.py', *sys.argv[1:]];\n"
+    "try:\n    runpy.run_path('train.py', run_name='__main__')\nexcept SystemExit:\n    pass\n"
+    "print('LOADED', [m for m in ('matplotlib', 'scipy', 'osqp', 'onnx', 'onnxruntime') if m in sys.modules])"
+)
+
+
+def main() -> None:
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--rounds", type=int, default=3)
+    p.add_argument("overrides", nargs="*", help="train.py overrides")
+    args = p.parse_args()
+    launch, libraries = [], []
+    for _ in range(args.rounds):
+        libraries.append(
+            float(subprocess.run([sys.executable, "-c", LIBRARIES], capture_output=True, text=True).stdout)
+        )
+        with tempfile.TemporaryDirectory() as run_dir:
+            overrides = ["logger.progress=false", f"hydra.run.dir={run_dir}", "eval.num_starts=1", *args.overrides]
+            batch = ["collector.total_frames=1"]  # rounded up to one batch
+            t = time.time()
+            r = subprocess.run(
+                [sys.executable, "-c", PROBE, *batch, *overrides], cwd=ROOT, capture_output=True, text=True
+            )
+            if r.returncode != 0:
+                sys.exit(r.stderr[-2000:])
+            summary = json.loads((Path(run_dir) / "summary.json").read_text())
+            launch.append(summary["collecting_since_unix_seconds"] - t)
+            loaded = r.stdout.strip().splitlines()[-1]
+    lib, total = statistics.median(libraries), statistics.median(launch)
+    print(f"launch to the first training frame: {total:.2f} s (median of {args.rounds})")
+    print(f"  import torch, torchrl, mujoco: {lib:.2f} s")
+    print(f"  the rest (Python start-up, bfc, Hydra, the envs, the networks): {total - lib:.2f} s")
+    print(f"  heavy optional packages the training process imported: {loaded.removeprefix('LOADED ')}")
+
+
+if __name__ == "__main__":
+    main()
