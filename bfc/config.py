@@ -133,7 +133,7 @@ class ModelConfig:
 
 @dataclass
 class CollectorConfig:
-    total_frames: int = 8_000_000  # rounded up to whole batches
+    total_frames: int = 6_000_000  # rounded up to whole batches (8M bought nothing more: docs/training.md)
     frames_per_batch: int = 8_192  # 256 envs x 32 steps: twice the updates of 16k batches for the same frames
     # Stop early once `stop_patience` consecutive in-training evaluations reach this success rate
     # (e.g. 0.99): for a flying policy rather than a fixed budget. null: run total_frames.
@@ -141,10 +141,11 @@ class CollectorConfig:
     stop_patience: int = 3
     # fused: bfc's collector (the same batches as TorchRL's, bfc's transforms only); torchrl:
     # TorchRL's Collector over the TransformedEnv (any transform stack). docs/training.md, "Collectors"
-    kind: str = "torchrl"
-    # 0: collect in the learner's process, between updates; 1: in a worker process that collects
-    # the next batch while the learner updates (the policy one update behind)
-    workers: int = 0
+    kind: str = "fused"
+    # 0: collect in the learner's process, between updates; k >= 1: in k worker processes (each
+    # num_envs / k envs) that collect the next batch while the learner updates (the policy one
+    # update behind); docs/training.md, "Collectors"
+    workers: int = 1
 
 
 @dataclass
@@ -159,7 +160,7 @@ class LossConfig:
     entropy_coeff: float = 0.0
     critic_coeff: float = 0.5
     critic_loss: str = "l2"  # l2 | l1 | smooth_l1: TorchRL's loss_critic_type
-    epochs: int = 3  # 3 passes of 16 minibatches (extras=none: 4)
+    epochs: int = 2  # 2 passes of 16 minibatches (extras=none: 4)
     num_minibatches: int = 16  # per epoch; the minibatch is frames_per_batch / num_minibatches frames (512)
     minibatch_size: int | None = None  # set: a fixed size in frames instead (overrides num_minibatches)
 
@@ -236,7 +237,7 @@ class EvalConfig(ProtocolConfig):
     interval_frames: int = 1_000_000  # after early_frames: a settled run needs few looks
     # denser evaluations early, when a run first flies (about 0.5M frames for the default): every
     # early_interval_frames until early_frames
-    early_frames: int = 2_000_000  # 0: off
+    early_frames: int = 1_000_000  # 0: off
     early_interval_frames: int = 250_000
     at_start: bool = False  # also fly the untrained policy at frame 0 (a curve's first point; ~5 s)
     # MuJoCo's step for the validation flights; null: the training step (env.physics_dt). evaluate.py's
@@ -258,7 +259,9 @@ class Config:
     seed: int = 0
     variant: str = "jd_css_tdts_robust"  # the variant's name, set by conf/ablation/*.yaml (logging, run dirs)
     resume: str | None = None  # a run directory to continue
-    torch_threads: int = 2  # for the PPO update; collection and update never overlap
+    # torch threads for the update; null: the cores the collector workers leave (2 on 2 cores with
+    # collector.workers=0, 1 with the default workers=1)
+    torch_threads: int | None = None
     env: EnvConfig = field(default_factory=EnvConfig)
     jd: JDConfig = field(default_factory=JDConfig)
     css: CSSConfig = field(default_factory=CSSConfig)
@@ -443,7 +446,12 @@ def validate(cfg) -> None:
         c.frames_per_batch,
     )
     check(c.kind in COLLECTORS, "collector.kind", " or ".join(COLLECTORS), c.kind)
-    check(c.workers in (0, 1), "collector.workers", "0 (in the learner's process) or 1 (one worker process)", c.workers)
+    check(
+        isinstance(c.workers, int) and c.workers >= 0 and (c.workers == 0 or num_envs % c.workers == 0),
+        "collector.workers",
+        f"0 (in the learner's process) or a number of worker processes that divides env.num_envs ({num_envs})",
+        c.workers,
+    )
     lo = cfg.loss
     check(lo.kind in ("clip", "kl"), "loss.kind", "'clip' or 'kl'", lo.kind)
     check(lo.critic_loss in CRITIC_LOSSES, "loss.critic_loss", ", ".join(CRITIC_LOSSES), lo.critic_loss)
@@ -512,7 +520,8 @@ def validate(cfg) -> None:
         check(cfg.env.physics_dt > 0, "env.physics_dt", "null (one step per control step) or > 0", cfg.env.physics_dt)
     check_protocol(cfg.eval)
     check(cfg.checkpoint.interval_frames > 0, "checkpoint.interval_frames", "> 0", cfg.checkpoint.interval_frames)
-    check(cfg.torch_threads >= 1, "torch_threads", ">= 1", cfg.torch_threads)
+    if cfg.torch_threads is not None:
+        check(cfg.torch_threads >= 1, "torch_threads", "null (the cores the workers leave) or >= 1", cfg.torch_threads)
 
 
 def check_protocol(p, section: str = "eval") -> None:

@@ -24,7 +24,8 @@ from bfc.transforms import ControlledStartingState, JumpingDistribution, TimeDep
 
 
 def make_collection(cfg, net, total_frames: int):
-    """The collection `collector.workers` asks for, flying the policy network `net`."""
+    """The collection `collector.workers` asks for (0: here; k: k worker processes), flying the
+    policy network `net`."""
     if int(cfg.collector.workers) == 0:
         return LocalCollection(cfg, net, total_frames)
     return AsyncCollection(cfg, net, total_frames)
@@ -89,67 +90,54 @@ class LocalCollection:
 
 
 class AsyncCollection:
-    """A worker process collects batch i+1 while this process updates on batch i: collection and
-    update overlap on two cores, and batch i+1 is flown with the weights from before update i
-    (the policy one update behind; batches 0 and 1 both fly the initial weights). PPO's ratio is
-    taken against the log-probabilities recorded at collection, so the lag is what it corrects.
+    """Worker processes collect batch i+1 while this process updates on batch i: collection and
+    update overlap, and batch i+1 is flown with the weights from before update i (the policy one
+    update behind; batches 0 and 1 both fly the initial weights). PPO's ratio is taken against
+    the log-probabilities recorded at collection, so the lag is what it corrects.
 
-    The worker is a `LocalCollection` with one MuJoCo thread (unless `env.num_threads` says
-    otherwise), its own torch generator seeded by `seed` and a copy of the network, refreshed from
-    shared memory at each update. Every exchange is in a fixed order, so a run is reproducible by
-    seed on one machine; it is not the same run as `collector.workers=0` (the lag, and the
-    worker's own generator). A checkpoint holds the worker's whole state and the batches it had
-    sent that the learner had not yet used, so a resumed run is bit-identical too.
+    With `collector.workers=k`, each worker is a `LocalCollection` of num_envs / k envs (its own
+    seed: `seed` for the first, `seed + 1000 w` for worker w; every frame-counted schedule, JD's
+    decay and the curriculum, divided by k so that it follows the run's total frames), one MuJoCo
+    thread unless `env.num_threads` says otherwise, its own torch generator and a copy of the
+    network refreshed from shared memory at each update; a batch is the workers' batches side by
+    side (envs of worker 0 first). Every exchange is in a fixed order, so a run is reproducible by
+    seed on one machine for a given k; it is not the same run as `collector.workers=0` (the lag,
+    the workers' own generators) nor as another k. A checkpoint holds every worker's state and
+    the batches they had sent that the learner had not used yet, so a resumed run is
+    bit-identical too.
     """
 
     def __init__(self, cfg, net, total_frames: int):
         self.cfg, self.net, self.total = cfg, net, int(total_frames)
-        self.fpb = int(cfg.collector.frames_per_batch)
-        ctx = torch.multiprocessing.get_context("fork")
-        # two slots of weights: the worker reads version v from slot v % 2 while the learner writes v + 1
+        self.k = int(cfg.collector.workers)
+        n, self.fpb = int(cfg.env.num_envs), int(cfg.collector.frames_per_batch)
+        if n % self.k or self.fpb % self.k:
+            raise ValueError(f"env.num_envs ({n}) must be a multiple of collector.workers ({self.k})")
+        self.shape = (n, self.fpb // n)
+        # bad env or transform values fail here, with their one-line message, not in a worker
+        make_env(OmegaConf.create(worker_config(cfg, 0, self.k)), seed=int(cfg.seed)).close()
+        self.ctx = torch.multiprocessing.get_context("fork")
+        # two slots of weights: a worker copies version v out of slot v % 2 while the learner writes v + 1
         self.slots = [{k: v.detach().clone().share_memory_() for k, v in net.state_dict().items()} for _ in range(2)]
-        self.commands, self.replies = ctx.Queue(), ctx.Queue()
-        self.ctx, self.process = ctx, None
-        self.version, self.frames = 0, 0  # updates published, frames handed to the learner
-        self.pending: list = []  # batches received but not yet handed out
-        self.resume: dict | None = None
+        self.workers = [_Worker(self.ctx, w) for w in range(self.k)]
+        self.version, self.frames, self.started = 0, 0, False  # updates published, frames handed out
         self._stats, self._css = {}, None
 
-    # ------------------------------------------------------------------ the worker process
     def _start(self) -> None:
-        if self.process is not None:
+        if self.started:
             return
-        cfg = OmegaConf.to_container(self.cfg, resolve=True)
-        args = (cfg, self.slots, self.commands, self.replies, self.total, self.resume)
-        self.process = self.ctx.Process(target=_work, args=args, daemon=True, name="bfc-collector")
-        self.process.start()
-
-    def _receive(self, kind: str):
-        while True:
-            try:
-                message = self.replies.get(timeout=1.0)
-            except queue.Empty:
-                if not self.process.is_alive():
-                    raise RuntimeError(
-                        f"the collector process died (exit code {self.process.exitcode}) without a word"
-                    ) from None
-                continue
-            if message[0] == "error":
-                raise RuntimeError(f"the collector process failed: {message[1]}")
-            if message[0] == kind:
-                return message
-            if message[0] == "batch":  # a batch that came before the reply asked for: keep it
-                self.pending.append(message)
-            else:
-                raise RuntimeError(f"unexpected message from the collector process: {message[0]!r}")
+        for worker in self.workers:
+            worker.start(worker_config(self.cfg, worker.index, self.k), self.slots, self.total // self.k)
+        self.started = True
 
     def __iter__(self):
         self._start()
         while self.frames < self.total:
-            _, index, payload, stats, css = self.pending.pop(0) if self.pending else self._receive("batch")
-            n = int(self.cfg.env.num_envs)
-            batch = TensorDict.from_dict(payload, batch_size=[n, self.fpb // n])
-            self._stats, self._css = stats, css
+            parts = [worker.receive("batch") for worker in self.workers]
+            batches = [TensorDict.from_dict(p[2], batch_size=[self.shape[0] // self.k, self.shape[1]]) for p in parts]
+            batch = batches[0] if self.k == 1 else torch.cat(batches, 0)
+            self._stats = _merge([p[3] for p in parts])
+            self._css = parts[0][4]
             self.frames += batch.numel()
             yield batch
 
@@ -160,29 +148,103 @@ class AsyncCollection:
         return self._css
 
     def update_policy_weights_(self) -> None:
-        """Publish the learner's new weights (the next version) for the worker's batch after next."""
+        """Publish the learner's new weights (the next version) for the workers' batch after next."""
         self.version += 1
         slot = self.slots[self.version % 2]
         for k, v in self.net.state_dict().items():
             slot[k].copy_(v)
-        self.commands.put(("weights", self.version))
+        for worker in self.workers:
+            worker.commands.put(("weights", self.version))
 
     def state_dict(self) -> dict:
-        """The worker's state (after the batches it has sent) and the batches not yet handed out."""
+        """Every worker's state (after the batches it has sent) and the batches not yet handed out."""
         self._start()
-        self.commands.put(("snapshot",))
-        _, worker = self._receive("state")
-        pending = [list(m) for m in self.pending]
-        return {"worker": worker, "pending": pending, "version": self.version, "frames": self.frames}
+        for worker in self.workers:
+            worker.commands.put(("snapshot",))
+        states = [worker.receive("state")[1] for worker in self.workers]
+        pending = [[list(m) for m in worker.pending] for worker in self.workers]
+        return {"workers": states, "pending": pending, "version": self.version, "frames": self.frames}
 
     def load_state_dict(self, state: dict) -> None:
-        if self.process is not None:
+        if self.started:
             raise RuntimeError("load the collection's state before iterating it")
-        self.resume = state["worker"]  # its weights by version come with it
-        self.pending = [tuple(m) for m in state["pending"]]
+        if len(state["workers"]) != self.k:
+            raise ValueError(f"the checkpoint has {len(state['workers'])} collector workers, this run {self.k}")
+        for worker, resume, pending in zip(self.workers, state["workers"], state["pending"], strict=True):
+            worker.resume, worker.pending = resume, [tuple(m) for m in pending]  # weights by version come with it
         self.version, self.frames = int(state["version"]), int(state["frames"])
 
     def close(self) -> None:
+        for worker in self.workers:
+            worker.stop()
+        self.started = False
+
+
+def worker_config(cfg, w: int, k: int) -> dict:
+    """Worker w's config of k: its share of the envs and frames, its seed, every frame-counted
+    schedule divided by k (so that, counted on its own envs, it follows the whole run)."""
+    from bfc.config import jd_decay_frames
+
+    c = OmegaConf.to_container(cfg, resolve=True)
+    if k > 1:
+        c["env"]["num_envs"] //= k
+        c["collector"]["frames_per_batch"] //= k
+        c["collector"]["total_frames"] = int(cfg.collector.total_frames) // k
+        c["jd"]["decay_frames"] = jd_decay_frames(cfg) // k
+        c["curriculum"]["frames"] = int(cfg.curriculum.frames) // k
+        c["seed"] = int(cfg.seed) + 1000 * w
+    return c
+
+
+def _merge(stats: list[dict]) -> dict:
+    """The workers' world statistics as one: counts summed, schedules (the same in every worker) kept."""
+    out = dict(stats[0])
+    for key in ("train/physics_failures", "train/tdts_fired"):
+        if key in out:
+            out[key] = float(sum(s[key] for s in stats))
+    return out
+
+
+class _Worker:
+    """One collector process and its two queues, seen from the learner."""
+
+    def __init__(self, ctx, index: int):
+        self.ctx, self.index = ctx, index
+        self.commands, self.replies = ctx.Queue(), ctx.Queue()
+        self.process, self.resume = None, None
+        self.pending: list = []  # batches received but not yet handed out
+
+    def start(self, cfg: dict, slots, total_frames: int) -> None:
+        args = (cfg, slots, self.commands, self.replies, total_frames, self.resume)
+        name = f"bfc-collector-{self.index}"
+        self.process = self.ctx.Process(target=_work, args=args, daemon=True, name=name)
+        self.process.start()
+
+    def receive(self, kind: str):
+        if kind == "batch" and self.pending:
+            return self.pending.pop(0)
+        while True:
+            try:
+                message = self.replies.get(timeout=1.0)
+            except queue.Empty:
+                if not self.process.is_alive():
+                    raise RuntimeError(
+                        f"collector process {self.index} died (exit code {self.process.exitcode}) without a word"
+                    ) from None
+                continue
+            if message[0] == "error":
+                _, kind, text, trace = message
+                if kind == "ValueError":  # bad input reaches the user as the one line it is
+                    raise ValueError(text)
+                raise RuntimeError(f"collector process {self.index} failed: {trace}")
+            if message[0] == kind:
+                return message
+            if message[0] == "batch":  # a batch that came before the reply asked for: keep it
+                self.pending.append(message)
+            else:
+                raise RuntimeError(f"unexpected message from collector process {self.index}: {message[0]!r}")
+
+    def stop(self) -> None:
         if self.process is not None and self.process.is_alive():
             self.commands.put(("stop",))
             self.process.join(timeout=10)
@@ -241,5 +303,5 @@ def _work(cfg: dict, slots, commands, replies, total_frames: int, resume: dict |
             handle(commands.get())
     except _Stop:
         return
-    except Exception:  # noqa: BLE001 - reported to the learner, which raises it
-        replies.put(("error", traceback.format_exc(limit=5)))
+    except Exception as err:  # noqa: BLE001 - reported to the learner, which raises it
+        replies.put(("error", type(err).__name__, str(err), traceback.format_exc(limit=5)))

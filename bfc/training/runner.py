@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import json
 import math
+import os
 import sys
 import time
 from pathlib import Path
@@ -129,6 +130,9 @@ class Runner:
         self.best, self.best_error = -1.0, math.inf
         self.timing = {"collect_seconds": 0.0, "update_seconds": 0.0, "batches": 0}  # this process only
         self.logger = None
+        # the update's torch threads: torch_threads, or the cores the collector workers leave
+        cores, workers = os.cpu_count() or 1, int(cfg.collector.workers)
+        self.update_threads = int(cfg.torch_threads or max(1, cores - workers))
         self.stopped_early = False  # collector.stop_at_success was met
 
     # ------------------------------------------------------------------ save / load
@@ -287,7 +291,7 @@ class Runner:
         n = data.numel()
         self.frames += n
         self.batches += 1
-        torch.set_num_threads(cfg.torch_threads)  # the update: torch gets the cores
+        torch.set_num_threads(self.update_threads)  # the update: torch gets the cores
         if cfg.optim.anneal_lr:  # linear decay to 0 at the last frame (CleanRL's recipe)
             factor = max(0.0, 1.0 - (self.frames - n) / self.total)
             for optimizer in self.learner.optimizers:
@@ -351,9 +355,9 @@ class Runner:
 def train(cfg, run_dir) -> dict:
     """Train (or resume, when `run_dir` holds a checkpoint) and return the run's summary.
 
-    Collection runs with one torch thread (MuJoCo's rollout threads own the cores) and the PPO
-    update with `torch_threads` (measured fastest on 2 cores: bench/update_time.py); the caller's
-    thread count is restored on return.
+    Collection in this process runs with one torch thread (MuJoCo's rollout threads own the
+    cores), the update with `torch_threads` (null: the cores the collector workers leave); the
+    caller's thread count is restored on return.
     """
     threads = torch.get_num_threads()
     torch.set_num_threads(1)

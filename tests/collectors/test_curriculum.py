@@ -60,7 +60,7 @@ def test_a_resumed_run_flies_the_curriculum_where_it_left_off(tmp_path):
     from bfc.training.runner import Runner
     from tests.training.helpers import TINY
 
-    cfg = compose_cfg([*TINY, "curriculum.frames=4096", "curriculum.start=0.5"])
+    cfg = compose_cfg([*TINY, "collector.workers=0", "curriculum.frames=4096", "curriculum.start=0.5"])
     runner = Runner(cfg, tmp_path)
     world = runner.collection
     assert world.env.base_env.randomize_scale == 0.5 and world.jd.range_scale == 0.5
@@ -69,7 +69,16 @@ def test_a_resumed_run_flies_the_curriculum_where_it_left_off(tmp_path):
     assert world.jd.range_scale == pytest.approx(0.6875) and world.jd.inverted_scale == pytest.approx(0.375)
     runner.close()
     resumed = Runner(
-        compose_cfg([*TINY, "collector.total_frames=4096", "curriculum.frames=4096", "curriculum.start=0.5"]), tmp_path
+        compose_cfg(
+            [
+                *TINY,
+                "collector.workers=0",
+                "collector.total_frames=4096",
+                "curriculum.frames=4096",
+                "curriculum.start=0.5",
+            ]
+        ),
+        tmp_path,
     )
     resumed.load(torch.load(tmp_path / "checkpoints" / "last.pt", weights_only=True))
     world = resumed.collection  # where the next batch (from 2048) is flown

@@ -58,7 +58,7 @@ def test_the_schema_is_what_the_default_runs_and_extras_none_the_paper_variants(
     assert robust.curriculum.frames > 0 and plain.curriculum.frames == 0
     assert robust.env.reward.angular_velocity == 0.001 and plain.env.reward.angular_velocity == 0.005
     assert list(robust.model.actor_hidden) == [128, 128] and list(plain.model.actor_hidden) == [64, 64]
-    assert robust.loss.epochs == 3 and plain.loss.epochs == 4
+    assert robust.loss.epochs == 2 and plain.loss.epochs == 4
     assert robust.jd.p_end == 0.75 and plain.jd.p_end == 0.0 and list(plain.jd.roll_range) == [-60.0, 60.0]
     changed = {k for k in robust if robust[k] != plain[k]}
     assert changed == {"variant", "model", "env", "jd", "curriculum", "optim", "loss"}

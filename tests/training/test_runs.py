@@ -74,12 +74,18 @@ def _assert_same_checkpoint(a, b):
 
 def _env_state(ckpt: dict) -> dict:
     collection = ckpt["collector"]
-    collection = collection["worker"]["collection"] if "worker" in collection else collection
+    collection = collection["workers"][0]["collection"] if "workers" in collection else collection
     return collection["collector"]["env_state_dict"]
 
 
 @pytest.mark.parametrize(
-    "collector", [["collector.kind=torchrl"], ["collector.kind=fused"], ["collector.kind=fused", "collector.workers=1"]]
+    "collector",
+    [
+        ["collector.kind=torchrl"],
+        ["collector.kind=fused"],
+        ["collector.kind=fused", "collector.workers=1"],
+        ["collector.kind=fused", "collector.workers=2"],
+    ],
 )
 def test_resumed_run_ends_like_an_uninterrupted_one(tmp_path, collector):
     # JD's schedule and the learning-rate anneal follow collector.total_frames: pin them, since the
