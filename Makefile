@@ -1,6 +1,6 @@
 # Two commands set everything up on a fresh machine:
 #   make train   creates .venv, installs bfc, and runs the default (JD-CSS-TDTS) training
-#   make test    creates .venv, installs bfc with its dev (and joblib, onnx) extras, and runs the tests
+#   make test    creates .venv, installs bfc with its dev (and joblib, onnx, ray, submitit, optuna) extras, and runs the tests
 PYTHON ?= python3
 VENV ?= .venv
 BIN = $(VENV)/bin
@@ -15,7 +15,7 @@ $(BIN)/python:
 
 $(VENV)/.installed: pyproject.toml | $(BIN)/python
 	$(BIN)/pip install --quiet "$(TORCH)"
-	$(BIN)/pip install --quiet -e ".[dev,joblib,onnx]"
+	$(BIN)/pip install --quiet -e ".[dev,joblib,onnx,ray,submitit,optuna]"
 	touch $@
 
 install: $(VENV)/.installed

@@ -11,14 +11,18 @@ Bad input (an unknown key, a value out of range, a run directory with nothing to
 with a one-line `error: ...` on stderr and exit status 2.
 """
 
+import os
+import sys
 from pathlib import Path
 
 import hydra
 from hydra.core.hydra_config import HydraConfig
+from hydra.types import RunMode
 from omegaconf import OmegaConf
 
 from bfc.cli import fail, precheck
 from bfc.config import check_keys, validate  # importing bfc.config registers the schema Hydra composes with
+from bfc.sweeps import objective, write_status
 from bfc.training import train
 
 
@@ -39,23 +43,45 @@ def resume_config(cfg):
 
 @hydra.main(config_path="conf", config_name="config", version_base="1.3")
 def main(cfg) -> float:
+    """One training run; in a sweep, one job: its outcome goes to its run directory's
+    status.json, and a job that fails is reported (one line) while the others go on."""
+    multirun = HydraConfig.get().mode == RunMode.MULTIRUN
+    run_dir = Path(HydraConfig.get().runtime.output_dir)
     try:
         if cfg.resume:
             cfg, run_dir = resume_config(cfg)
-        else:
-            run_dir = Path(HydraConfig.get().runtime.output_dir)
         validate(cfg)
+        if multirun:
+            write_status(run_dir, "running", pid=os.getpid())
         summary = train(cfg, run_dir)
-    except (ValueError, FileNotFoundError) as err:
-        fail(err)
+    except KeyboardInterrupt:
+        if multirun:
+            write_status(run_dir, "interrupted")
+        raise
+    except Exception as err:
+        if not multirun:
+            if isinstance(err, (ValueError, FileNotFoundError)):
+                fail(err)
+            raise
+        line = str(err).strip().splitlines()[0] if str(err).strip() else type(err).__name__
+        write_status(run_dir, "failed", error=line)
+        print(f"error: job {run_dir}: {line}", file=sys.stderr)
+        return float("nan")
+    value = objective(summary, cfg.sweep_objective)
+    if multirun:
+        write_status(run_dir, "finished", objective=value)
     print(f"run directory: {run_dir}")
     print(
         f"frames {summary['frames']}, wall-clock {summary['wall_seconds']} s, "
         f"final success {summary['final_success_rate']}, best {summary['best_success_rate']}"
     )
-    return float(summary["final_success_rate"] or 0.0)
+    return value
 
 
 if __name__ == "__main__":
     precheck("config")
-    main()
+    try:
+        main()
+    except KeyboardInterrupt:
+        print("interrupted: every finished run is complete; run the same command again to resume", file=sys.stderr)
+        sys.exit(130)

@@ -48,16 +48,61 @@ def fail(err: Exception) -> None:
     sys.exit(2)
 
 
+# Hydra plugins by the group option that selects them: the module, and the extra that installs it
+PLUGINS = {
+    "hydra/launcher": {
+        "joblib": ("hydra_plugins.hydra_joblib_launcher", "joblib"),
+        "ray": ("hydra_plugins.hydra_ray_launcher", "ray"),
+        "submitit_local": ("hydra_plugins.hydra_submitit_launcher", "submitit"),
+        "submitit_slurm": ("hydra_plugins.hydra_submitit_launcher", "submitit"),
+    },
+    "hydra/sweeper": {"optuna": ("hydra_plugins.hydra_optuna_sweeper", "optuna")},
+}
+
+
+def check_plugins(overrides: list[str]) -> None:
+    """A launcher or sweeper whose extra is not installed, or a Ray cluster address that does not
+    answer: one ValueError line, before Hydra starts anything."""
+    import importlib.util
+
+    values = dict(o.split("=", 1) for o in overrides if "=" in o)
+    for group, options in PLUGINS.items():
+        choice = values.get(group)
+        if choice in options:
+            module, extra = options[choice]
+            if importlib.util.find_spec(module) is None:
+                raise ValueError(f'{group}={choice} needs the {extra} extra: pip install -e ".[{extra}]"')
+    address = values.get("hydra.launcher.ray.init.address")
+    if values.get("hydra/launcher") == "ray" and address not in (None, "null", "auto"):
+        import socket
+
+        host, _, port = address.rpartition(":")
+        try:
+            socket.create_connection((host, int(port)), timeout=3).close()
+        except (OSError, ValueError):
+            raise ValueError(
+                f"no Ray cluster answers at hydra.launcher.ray.init.address={address}: start one with "
+                f'`ray start --head --port={port or 6379}` (docs/training.md, "Sweeps on a Ray cluster")'
+            ) from None
+
+
 def precheck(config_name: str, argv: list[str] | None = None) -> None:
     """Check the command line's overrides against the schema and conf/ before Hydra composes
-    (bfc.config.check_overrides): a key that names nothing, a moved key, an unknown group option
-    or bad override syntax ends here with one line, before any job of a sweep starts."""
+    (bfc.config.check_overrides), and the launcher or sweeper they name (check_plugins): a key
+    that names nothing, a moved key, an unknown group option, bad override syntax, a missing
+    extra or a Ray cluster that does not answer ends here with one line, before any job of a
+    sweep starts."""
+    import warnings
+
     from bfc.config import check_overrides
 
+    # conf/hydra/launcher/ray.yaml replaces the Ray plugin's defaults, which Hydra warns of
+    warnings.filterwarnings("ignore", message=".*hydra/launcher/ray.* is validated against ConfigStore schema")
     overrides, ours = overrides_of(sys.argv[1:] if argv is None else argv)
     if not ours:
         return
     try:
         check_overrides(overrides, config_name)
+        check_plugins(overrides)
     except ValueError as err:
         fail(err)

@@ -124,9 +124,10 @@ class Runner:
         self.total = -(-int(cfg.collector.total_frames) // fpb) * fpb  # whole batches
         # the env, its curriculum and the collector (here, or in a worker process)
         self.collection = make_collection(cfg, self.net, self.total)
-        self.evaluator = ProtocolEvaluator(cfg)
+        self.evaluator = None  # built at the first evaluation: the first batch starts sooner
         self.frames, self.batches, self.wall = 0, 0, 0.0
         self.history: list[dict] = []
+        self.resumed_from: list[int] = []  # the frame counts this run was resumed at (killed, preempted)
         self.best, self.best_error = -1.0, math.inf
         self.timing = {"collect_seconds": 0.0, "update_seconds": 0.0, "batches": 0}  # this process only
         self.logger = None
@@ -142,6 +143,7 @@ class Runner:
             "batches": self.batches,
             "wall": self.wall,
             "history": self.history,
+            "resumed_from": self.resumed_from,
             "best": self.best,
             "best_error": self.best_error,
             "actor": self.actor.state_dict(),
@@ -166,6 +168,7 @@ class Runner:
             self.learner.load_state_dict(ckpt)
             self.frames, self.batches, self.wall = int(ckpt["frames"]), int(ckpt["batches"]), float(ckpt["wall"])
             self.history, self.best = list(ckpt["history"]), float(ckpt["best"])
+            self.resumed_from = [*ckpt["resumed_from"], self.frames]
             self.best_error = float(ckpt["best_error"])
             self.collection.load_state_dict(ckpt["collector"])
         except (KeyError, RuntimeError, ValueError) as err:
@@ -189,6 +192,8 @@ class Runner:
     def evaluate(self) -> dict:
         """The protocol on the validation starts; keeps policy.pt as the best so far."""
         t0 = time.perf_counter()
+        if self.evaluator is None:
+            self.evaluator = ProtocolEvaluator(self.cfg)
         metrics = self.evaluator(self.net)
         metrics["time/eval_seconds"] = time.perf_counter() - t0
         # unix_seconds: when the evaluation ended, so a benchmark can count from process start
@@ -336,6 +341,7 @@ class Runner:
                 self.timing["batches"] * cfg.collector.frames_per_batch / max(self.timing["collect_seconds"], 1e-9)
             ),
             "update_seconds_per_batch": round(self.timing["update_seconds"] / max(self.timing["batches"], 1), 3),
+            "resumed_from": self.resumed_from,
             "history": self.history,
         }
         (run_dir / "summary.json").write_text(json.dumps(summary, indent=1))
@@ -349,7 +355,8 @@ class Runner:
         if self.logger is not None:
             self.logger.close()
         self.collection.close()
-        self.evaluator.close()
+        if self.evaluator is not None:
+            self.evaluator.close()
 
 
 def train(cfg, run_dir) -> dict:

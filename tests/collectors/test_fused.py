@@ -127,3 +127,20 @@ def test_a_worker_process_collects_while_the_learner_updates(tmp_path):
     summary = train(compose_cfg([*TINY, "collector.kind=fused", "collector.workers=1"]), tmp_path / "run")
     assert summary["frames"] == 2048
     assert fly(tmp_path / "run" / "policy.pt", protocol_starts(2), seconds=0.2).shape == (2, 20)
+
+
+def test_two_worker_processes_each_collect_half_of_the_envs():
+    """collector.workers=2: a batch is the two workers' batches side by side, each from its own
+    envs (its own seed), the same documented shape as one worker's."""
+    from bfc.training.runner import Runner
+    from tests.training.helpers import TINY, compose_cfg
+
+    runner = Runner(compose_cfg([*TINY, "collector.workers=2"]), "/tmp/bfc-two-workers")
+    try:
+        batch = next(iter(runner.collection))
+        assert tuple(batch.batch_size) == (16, 32)
+        first, second = batch.get(("state", "position"))[:8, 0], batch.get(("state", "position"))[8:, 0]
+        assert not torch.equal(first, second)  # two seeds, two sets of starts
+        assert set(runner.collection.stats()) >= {"train/jd_probability", "train/physics_failures"}
+    finally:
+        runner.close()

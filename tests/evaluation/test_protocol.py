@@ -154,16 +154,17 @@ def test_fly_rejects_bad_input(tmp_path):
 
 
 def test_policy_files_fly_with_their_own_action_map(tmp_path):
-    """A file written before `action_map` existed flies with the speed map; the shipped one with thrust."""
+    """A policy flies with the action map its file records: the shipped one with thrust, the same
+    weights recorded with the speed map with speed."""
     from pathlib import Path
 
     from bfc.envs import AirframeParams
 
     shipped = Path(__file__).resolve().parents[2] / "pretrained" / "policy.pt"
     payload = torch.load(shipped, weights_only=True)
-    assert payload["model"]["action_map"] == "thrust"
-    del payload["model"]["action_map"]
-    old = tmp_path / "old.pt"
+    assert payload["spec"]["action_map"] == "thrust"
+    payload["spec"]["action_map"] = "speed"
+    old = tmp_path / "speed.pt"
     torch.save(payload, old)
     starts = protocol_starts(4, seed=3)
     thrust = fly(shipped, starts, seconds=0.05).get(keys.ACTION)[:, 0].double()
