@@ -97,7 +97,7 @@ def precheck(config_name: str, argv: list[str] | None = None) -> None:
     from bfc.config import check_overrides
 
     # conf/hydra/launcher/ray.yaml replaces the Ray plugin's defaults, which Hydra warns of
-    warnings.filterwarnings("ignore", message=".*hydra/launcher/ray.* is validated against ConfigStore schema")
+    warnings.filterwarnings("ignore", message=r"\s*'hydra/launcher/ray' is validated against ConfigStore schema")
     overrides, ours = overrides_of(sys.argv[1:] if argv is None else argv)
     if not ours:
         return

@@ -90,6 +90,30 @@ def test_a_killed_sweep_resumes_by_running_again(tmp_path):
     assert all(j["status"] == "finished" for j in runs(tmp_path).values())
 
 
+def test_ctrl_c_stops_a_sweep_and_leaves_its_finished_runs_whole(tmp_path):
+    """A sequential sweep of a short and a long job, interrupted (SIGINT, as Ctrl-C sends) while
+    the long one trains: one line, exit status 130, the short job's run whole."""
+    args = [*TINY, "collector.total_frames=1024,16384", f"hydra.sweep.dir={tmp_path}"]
+    process = subprocess.Popen(
+        [sys.executable, "train.py", "-m", *args],
+        cwd=ROOT,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    deadline = time.time() + 300
+    while time.time() < deadline and not list(tmp_path.glob("*/seed0_1/checkpoints/last.pt")):
+        time.sleep(0.2)
+    process.send_signal(signal.SIGINT)
+    _, err = process.communicate(timeout=120)
+    assert process.returncode == 130, err[-3000:]
+    assert err.strip().splitlines()[-1].startswith("interrupted: every finished run is complete")
+    assert "Traceback" not in err
+    first, second = next(tmp_path.glob("*/seed0_0")), next(tmp_path.glob("*/seed0_1"))
+    assert json.loads((first / "summary.json").read_text())["frames"] == 1024
+    assert json.loads((second / "status.json").read_text())["status"] == "interrupted"
+
+
 def test_a_launcher_or_a_cluster_that_is_not_there_is_one_line_and_no_job(tmp_path):
     r = sweep("hydra/launcher=ray", "hydra.launcher.ray.init.address=127.0.0.1:9", "+ablation=jd,ppo")
     assert r.returncode == 2 and r.stderr.strip().splitlines() == [r.stderr.strip()]
