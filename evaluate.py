@@ -5,6 +5,7 @@
     python evaluate.py controller=lee eval.num_starts=50
     python evaluate.py suite=paper policy=pretrained/policy.pt [runs=multirun/<date>/<time>]
     python evaluate.py suite=robust policy=pretrained/policy.pt baselines=[lee,lee_i,mpc]
+    python evaluate.py policy=pretrained/policy.pt sim=rotorpy      (RotorPy instead of MuJoCo)
 
 The protocol's keys are `eval.*` (eval.seed=0: the test starts that the docs report; training
 chooses policy.pt on its own eval.validation_seed=1 starts). A single evaluation writes
@@ -23,12 +24,18 @@ import hydra
 from hydra.core.hydra_config import HydraConfig
 from omegaconf import OmegaConf
 
+import bfc.headless_gl  # noqa: F401  (before mujoco is imported: MUJOCO_GL=egl without a display)
 from bfc.cli import fail, precheck
-from bfc.config import EVALUATION_SUITES, EvaluateConfig, check_keys, check_protocol
+from bfc.config import EVALUATION_SUITES, ROTORPY_AIRFRAMES, SIMULATORS, EvaluateConfig, check_keys, check_protocol
 from bfc.evaluation import CONTROLLERS, fly, protocol_starts
 from bfc.evaluation.metrics import summarize
 
 DEFAULTS = OmegaConf.structured(EvaluateConfig)
+SIM_NOTES = {
+    "mujoco": "bfc's MuJoCo env",
+    "rotorpy": "RotorPy, {airframe} airframe (docs/evaluation.md, Another simulator: RotorPy; the wind row is "
+    "the air whose drag at hover is the row's force)",
+}
 
 
 def _changed(cfg, key: str) -> bool:
@@ -39,6 +46,8 @@ def check(cfg) -> None:
     """Reject what the chosen mode would not use, and bad values, before anything flies."""
     check_keys(cfg, "evaluate")
     check_protocol(cfg.eval)
+    check_sim(cfg)
+    check_video(cfg)
     if cfg.controller is not None and cfg.controller not in CONTROLLERS:
         raise ValueError(f"unknown controller {cfg.controller!r}; available: {', '.join(sorted(CONTROLLERS))}")
     if cfg.suite is None:
@@ -71,6 +80,67 @@ def check(cfg) -> None:
         raise ValueError(f"unknown baselines {unknown}; available: {sorted(CONTROLLERS)}")
 
 
+def check_sim(cfg) -> None:
+    """sim=rotorpy (bfc.evaluation.rotorpy_sim): RotorPy installed, and only what it flies."""
+    if cfg.sim not in SIMULATORS:
+        raise ValueError(f"sim must be one of {', '.join(SIMULATORS)}, got {cfg.sim!r}")
+    if cfg.rotorpy_airframe not in ROTORPY_AIRFRAMES:
+        allowed = ", ".join(ROTORPY_AIRFRAMES)
+        raise ValueError(f"rotorpy_airframe must be one of {allowed}, got {cfg.rotorpy_airframe!r}")
+    if cfg.sim != "rotorpy":
+        if _changed(cfg, "rotorpy_airframe"):
+            raise ValueError("rotorpy_airframe only applies with sim=rotorpy")
+        return
+    if cfg.suite == "paper":
+        raise ValueError("sim=rotorpy flies the protocol (no suite) or suite=robust; suite=paper flies MuJoCo only")
+    if _changed(cfg, "noise"):
+        raise ValueError("noise does not apply with sim=rotorpy (RotorPy flights see the true odometry)")
+    from bfc.evaluation.rotorpy_sim import require_rotorpy
+
+    require_rotorpy()
+
+
+VIDEO_KEYS = ("video_starts", "video_pick", "video_camera", "video_seconds", "video_fps", "video_width", "video_height")
+
+
+def check_video(cfg) -> None:
+    """video=true (bfc.evaluation.video): a single evaluation or suite=robust in MuJoCo, PyAV installed."""
+    if not cfg.video:
+        unused = [k for k in VIDEO_KEYS if _changed(cfg, k)]
+        if unused:
+            raise ValueError(f"{', '.join(unused)} only apply with video=true")
+        return
+    from bfc.evaluation.video import check_options, writer_missing
+
+    if cfg.suite == "paper" or cfg.sim != "mujoco":
+        raise ValueError("video=true films a single evaluation or suite=robust flown in MuJoCo (sim=mujoco)")
+    c = cfg
+    check_options(
+        c.video_fps, c.video_width, c.video_height, c.video_starts, c.video_camera, c.video_pick, c.video_seconds
+    )
+    missing = writer_missing()
+    if missing:
+        raise ValueError(missing)
+
+
+def film(cfg, out: Path, kept: dict) -> None:
+    """Render the kept clips ({row: clips}; "" for a single evaluation) after the numbers are written;
+    no OpenGL renderer is one `error: ...` line (what to install) and exit status 2."""
+    from bfc.evaluation.video import RendererUnavailable, slug, write_video
+
+    t0, frames, written = time.perf_counter(), 0, []
+    try:
+        for name, clips in kept.items():
+            stem = out / (f"video_{slug(name)}" if name else "video")
+            paths, n = write_video(
+                clips, stem, cfg.video_fps, cfg.video_width, cfg.video_height, cfg.video_camera, cfg.video_seconds
+            )
+            frames, written = frames + n, written + [p.name for p in paths]
+    except RendererUnavailable as err:
+        fail(err)
+    print(f"{frames} video frames rendered in {time.perf_counter() - t0:.1f} s: {', '.join(written)}")
+
+
 @hydra.main(config_path="conf", config_name="evaluate", version_base="1.3")
 def main(cfg) -> None:
     out = Path(HydraConfig.get().runtime.output_dir)
@@ -84,19 +154,25 @@ def main(cfg) -> None:
         e = cfg.eval
         starts = protocol_starts(e.num_starts, e.seed)
         t0 = time.perf_counter()
-        flights = fly(
-            controller,
-            starts,
-            goal=tuple(cfg.goal),
-            seconds=e.seconds,
-            noise=OmegaConf.to_container(cfg.noise),
-            seed=e.seed,
-        )
+        if cfg.sim == "rotorpy":
+            from bfc.evaluation.rotorpy_sim import fly_rotorpy
+
+            flights = fly_rotorpy(controller, starts, tuple(cfg.goal), e.seconds, airframe=cfg.rotorpy_airframe)
+        else:
+            flights = fly(
+                controller,
+                starts,
+                goal=tuple(cfg.goal),
+                seconds=e.seconds,
+                noise=OmegaConf.to_container(cfg.noise),
+                seed=e.seed,
+            )
         wall = time.perf_counter() - t0
     except (ValueError, FileNotFoundError) as err:
         fail(err)
     results = {
         "controller": str(controller),
+        "sim": cfg.sim if cfg.sim == "mujoco" else f"rotorpy ({cfg.rotorpy_airframe} airframe)",
         "noise": OmegaConf.to_container(cfg.noise),
         "protocol": OmegaConf.to_container(cfg.eval),
         "flight_wall_seconds": round(wall, 2),
@@ -111,6 +187,11 @@ def main(cfg) -> None:
         f"{results['success']}/{results['starts']} successful ({results['success_rate']:.0%}), "
         f"{results['crashes']} crashes; flights took {wall:.1f} s; written to {out}"
     )
+    if cfg.video:
+        from bfc.evaluation.video import clips_from_flights, pick_starts
+
+        chosen = pick_starts(starts, cfg.video_starts, cfg.video_pick)
+        film(cfg, out, {"": clips_from_flights(flights, starts, chosen, e.threshold)})
 
 
 def run_suite(cfg, out: Path) -> None:
@@ -124,6 +205,21 @@ def run_suite(cfg, out: Path) -> None:
     print(f"report written to {path} in {time.perf_counter() - t0:.0f} s")
 
 
+def robust_keeper(kept: dict, label: str, count: int, pick: str, threshold: float, num_starts: int, seed: int):
+    """An `on_flights` for `robust_results`: keeps, in kept[row], the clips of `label`'s chosen starts
+    of each row (the other controllers' flights are not filmed)."""
+    from bfc.evaluation.suites import CONDITIONS, START_SETS
+    from bfc.evaluation.video import clips_from_flights, pick_starts
+
+    def keep(name: str, flown: str, flights) -> None:
+        if flown != label:
+            return
+        starts = START_SETS[CONDITIONS[name].starts](num_starts, seed)
+        kept[name] = clips_from_flights(flights, starts, pick_starts(starts, count, pick), threshold, label=name)
+
+    return keep
+
+
 def run_robust(cfg, out: Path) -> None:
     from bfc.evaluation.suites import robust_figure, robust_results, robust_table
 
@@ -132,13 +228,22 @@ def run_robust(cfg, out: Path) -> None:
     controllers = {label: controller, **{b: b for b in cfg.baselines if b != label}}
     e = cfg.eval
     t0 = time.perf_counter()
-    results = robust_results(controllers, num_starts=e.num_starts, seed=e.seed, protocol=e)
+    kept, keep = {}, None
+    if cfg.video:  # the chosen starts of each row, flown by the policy (or controller) under test
+        keep = robust_keeper(kept, label, cfg.video_starts, cfg.video_pick, e.threshold, e.num_starts, e.seed)
+    if cfg.sim == "rotorpy":
+        from bfc.evaluation.rotorpy_sim import robust_results_rotorpy
+
+        results = robust_results_rotorpy(controllers, None, e.num_starts, e.seed, e, cfg.rotorpy_airframe)
+    else:
+        results = robust_results(controllers, num_starts=e.num_starts, seed=e.seed, protocol=e, on_flights=keep)
     (out / "robust.json").write_text(json.dumps(results, indent=1))
     robust_figure(results, out / "robust.png")
     lines = [
         "# Robustness: start sets, model mismatch and wind",
         "",
-        f"Controller: `{controller}`. Command: `python evaluate.py {' '.join(sys.argv[1:])}`. "
+        f"Controller: `{controller}`. Simulator: {SIM_NOTES[cfg.sim].format(airframe=cfg.rotorpy_airframe)}. "
+        f"Command: `python evaluate.py {' '.join(sys.argv[1:])}`. "
         f"{e.num_starts} starts per suite (seed {e.seed}), {e.seconds:g} s, success = within {e.threshold:g} m on "
         f"every axis for {e.hold_seconds:g} s; hover error = median over the successful flights of the mean "
         "distance to the goal over the last 2 s. Suites: bfc.evaluation.suites.",
@@ -150,6 +255,8 @@ def run_robust(cfg, out: Path) -> None:
     ]
     (out / "robust.md").write_text("\n".join(lines))
     print(f"robust.md written to {out} in {time.perf_counter() - t0:.0f} s")
+    if cfg.video:
+        film(cfg, out, kept)
 
 
 if __name__ == "__main__":

@@ -20,6 +20,7 @@ from hydra.core.hydra_config import HydraConfig
 from hydra.types import RunMode
 from omegaconf import OmegaConf
 
+import bfc.headless_gl  # noqa: F401  (before mujoco is imported: MUJOCO_GL=egl without a display, logger.video)
 from bfc.cli import fail, precheck
 from bfc.config import check_keys, validate  # importing bfc.config registers the schema Hydra composes with
 from bfc.sweeps import objective, write_status

@@ -32,6 +32,8 @@ CONF_DIR = Path(__file__).resolve().parents[1] / "conf"  # the repository's Hydr
 ABLATIONS = ("ppo", "jd", "css", "tdts", "jd_css", "jd_tdts", "css_tdts", "jd_css_tdts")
 ALGORITHMS = ("ppo", "trpo", "ddpg")  # conf/algo/; bfc.training.learners.make_learner builds each
 EVALUATION_SUITES = ("paper", "robust")  # evaluate.py suite=...
+SIMULATORS = ("mujoco", "rotorpy")  # evaluate.py sim=... (rotorpy: bfc/evaluation/rotorpy_sim.py)
+ROTORPY_AIRFRAMES = ("bfc", "rotorpy")  # evaluate.py rotorpy_airframe=... (docs/evaluation.md)
 COLLECTORS = ("fused", "torchrl")
 OBJECTIVES = ("final_success_rate", "best_success_rate", "seconds_to_0.905")  # train.py's return value
 CRITIC_LOSSES = ("l2", "l1", "smooth_l1")  # TorchRL's loss_critic_type
@@ -219,6 +221,10 @@ class LoggerConfig:
     tensorboard: bool = True
     log_interval: int = 1  # batches
     progress: bool = True
+    # at each evaluation, a short video of one validation flight (the start released most tilted)
+    # under TensorBoard's `eval/video` (Images tab, an animated GIF); rendered by MuJoCo, so it needs
+    # an OpenGL backend (docs/training.md, "Watching a run")
+    video: bool = False
 
 
 @dataclass
@@ -301,6 +307,18 @@ class EvaluateConfig:
     goal: list[float] = field(default_factory=lambda: [0.0, 0.0, 1.5])  # single evaluation
     eval: TestProtocolConfig = field(default_factory=TestProtocolConfig)
     noise: NoiseConfig = field(default_factory=NoiseConfig)  # single evaluation: seen by the controller only
+    sim: str = "mujoco"  # the simulator flown: mujoco (bfc's env) | rotorpy (docs/evaluation.md)
+    rotorpy_airframe: str = "bfc"  # sim=rotorpy: bfc's "+" airframe | rotorpy (its X Hummingbird)
+    # Videos rendered by MuJoCo (bfc.evaluation.video; docs/evaluation.md, "Videos"): video.mp4 and
+    # video.gif beside results.json (suite=robust: video_<row>.mp4/.gif per row)
+    video: bool = False
+    video_starts: int = 4  # flights filmed, one after another (suite=robust: per row)
+    video_pick: str = "tilted"  # tilted: the starts released most tilted | first: the first starts
+    video_camera: str = "chase"  # chase: follows the drone | fixed: looks at the goal from 7 m
+    video_seconds: float | None = 5.0  # of each flight from its release (null: the whole flight)
+    video_fps: float = 20.0  # the MP4's (the GIF keeps at most 15 frames per second)
+    video_width: int = 480
+    video_height: int = 360
 
 
 # Keys that moved: the old spelling fails with one line naming the new one.
@@ -467,15 +485,7 @@ def validate(cfg) -> None:
     lo = cfg.loss
     check(lo.kind in ("clip", "kl"), "loss.kind", "'clip' or 'kl'", lo.kind)
     check(lo.critic_loss in CRITIC_LOSSES, "loss.critic_loss", ", ".join(CRITIC_LOSSES), lo.critic_loss)
-    check(0 < lo.gamma <= 1, "loss.gamma", "in (0, 1]", lo.gamma)
-    check(0 <= lo.lmbda <= 1, "loss.lmbda", "in [0, 1]", lo.lmbda)
-    check(lo.epochs >= 1, "loss.epochs", ">= 1", lo.epochs)
-    check(
-        1 <= lo.num_minibatches <= c.frames_per_batch,
-        "loss.num_minibatches",
-        f"in [1, collector.frames_per_batch={c.frames_per_batch}]",
-        lo.num_minibatches,
-    )
+    _check_updates("loss", lo.gamma, lo.lmbda, ("epochs", lo.epochs), ("num_minibatches", lo.num_minibatches), c)
     if lo.minibatch_size is not None:
         check(
             0 < lo.minibatch_size <= c.frames_per_batch,
@@ -496,15 +506,8 @@ def validate(cfg) -> None:
     check(t.cg_iterations >= 1, "algo.trpo.cg_iterations", ">= 1", t.cg_iterations)
     check(t.line_search_steps >= 1, "algo.trpo.line_search_steps", ">= 1", t.line_search_steps)
     check(t.damping >= 0, "algo.trpo.damping", ">= 0", t.damping)
-    check(0 < t.gamma <= 1, "algo.trpo.gamma", "in (0, 1]", t.gamma)
-    check(0 <= t.lmbda <= 1, "algo.trpo.lmbda", "in [0, 1]", t.lmbda)
-    check(t.critic_epochs >= 1, "algo.trpo.critic_epochs", ">= 1", t.critic_epochs)
-    check(
-        1 <= t.critic_minibatches <= c.frames_per_batch,
-        "algo.trpo.critic_minibatches",
-        f"in [1, collector.frames_per_batch={c.frames_per_batch}]",
-        t.critic_minibatches,
-    )
+    epochs, minibatches = ("critic_epochs", t.critic_epochs), ("critic_minibatches", t.critic_minibatches)
+    _check_updates("algo.trpo", t.gamma, t.lmbda, epochs, minibatches, c)
     d = a.ddpg
     check(
         d.batch_size >= 1 and d.buffer_size >= d.batch_size,
@@ -534,6 +537,23 @@ def validate(cfg) -> None:
     check(cfg.checkpoint.interval_frames > 0, "checkpoint.interval_frames", "> 0", cfg.checkpoint.interval_frames)
     if cfg.torch_threads is not None:
         check(cfg.torch_threads >= 1, "torch_threads", "null (the cores the workers leave) or >= 1", cfg.torch_threads)
+    if cfg.logger.video:
+        check(cfg.logger.tensorboard, "logger.video", "false when logger.tensorboard=false (it logs there)", True)
+
+
+def _check_updates(section: str, gamma, lmbda, epochs: tuple, minibatches: tuple, collector) -> None:
+    """GAE's gamma and lambda, the passes over a batch and the minibatches of one (PPO's `loss`,
+    TRPO's `algo.trpo`)."""
+    fpb = collector.frames_per_batch
+    check(0 < gamma <= 1, f"{section}.gamma", "in (0, 1]", gamma)
+    check(0 <= lmbda <= 1, f"{section}.lmbda", "in [0, 1]", lmbda)
+    check(epochs[1] >= 1, f"{section}.{epochs[0]}", ">= 1", epochs[1])
+    check(
+        1 <= minibatches[1] <= fpb,
+        f"{section}.{minibatches[0]}",
+        f"in [1, collector.frames_per_batch={fpb}]",
+        minibatches[1],
+    )
 
 
 def check_protocol(p, section: str = "eval") -> None:

@@ -2,7 +2,6 @@
 
 import subprocess
 import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -15,30 +14,7 @@ pytest.importorskip("onnx")
 from bfc.agent import POLICY_FORMAT, PolicySpec, load_policy, save_policy  # noqa: E402
 from bfc.envs.params import AirframeParams  # noqa: E402
 from bfc.export import OnnxController, export_onnx, main, read_metadata  # noqa: E402
-
-ROOT = Path(__file__).resolve().parents[1]
-PRETRAINED = ROOT / "pretrained" / "policy.pt"
-# On motor speed / hover speed (the speed map's action units): float32 round-off is ~1e-6.
-TOLERANCE = 1e-5
-
-
-def tiny_policy(path, action_map="speed"):
-    """A random 2x16 ELU policy with accelerations in its observation, on a heavier airframe."""
-    spec = PolicySpec(
-        include_acceleration=True,
-        action_map=action_map,
-        hidden=(16, 16),
-        activation="elu",
-        control_hz=250.0,
-        airframe={"body_mass": 0.8, "max_rotor_speed": 900.0},
-    )
-    torch.manual_seed(0)
-    net = spec.make_net()
-    with torch.no_grad():  # undo the near-zero last layer, so the outputs spread over the action range
-        for p in net.mlp.parameters():
-            p.normal_(0.0, 0.2)
-    save_policy(path, spec, net)
-    return path
+from tests.export_helpers import PRETRAINED, ROOT, TOLERANCE, random_inputs, tiny_policy, torch_reference  # noqa: E402
 
 
 @pytest.fixture(scope="module")
@@ -49,33 +25,6 @@ def models(tmp_path_factory):
         "pretrained": (PRETRAINED, export_onnx(PRETRAINED, d / "pretrained.onnx")),
         "tiny": (tiny, export_onnx(tiny, d / "tiny.onnx")),
     }
-
-
-def random_inputs(n, hover, max_speed, seed=0, spread=1.0):
-    """Odometry around the protocol's states (and beyond; `spread` < 1 keeps it nearer them), any
-    goal, previous commands over [0, max]."""
-    g = torch.Generator().manual_seed(seed)
-    scale = spread * torch.tensor([2.0, 2, 2, 2, 2, 2, 5, 5, 5, 0.7, 0.7, 3.14, 3, 3, 3, 20, 20, 20])
-    odometry = (2 * torch.rand(n, 18, generator=g) - 1) * scale
-    odometry[:, 2] += 1.5
-    goal = torch.tensor([0.0, 0.0, 1.5]) + 0.5 * spread * torch.randn(n, 3, generator=g)
-    previous = hover * (0.6 + 0.8 * torch.rand(n, 4, generator=g))
-    previous[: n // 10] = max_speed * torch.rand(n // 10, 4, generator=g)  # some far from hover
-    previous[n // 10 : n // 5] = hover  # after a reset
-    return odometry, goal, previous
-
-
-def torch_reference(policy_path, odometry, goal, previous, integral=None):
-    """What the env + the deterministic torch actor command: PolicyObservation.integrate and
-    .build, the actor's mean, MotorSpeedAction.to_command, the env's clip to [0, max]."""
-    spec, net = load_policy(policy_path)
-    action, observation = spec.make_action_map(), spec.make_observation_map(len(odometry))
-    if spec.position_integral:
-        integral = observation.integrate(integral, odometry, goal)
-    obs = observation.build(odometry, goal, action.to_action(previous).clamp(-1, 1), integral)
-    with torch.no_grad():
-        mean = net.mean(obs)
-    return action.to_command(mean).clamp(0.0, action.max_speed), spec
 
 
 @pytest.mark.parametrize("name", ["pretrained", "tiny"])

@@ -1,5 +1,6 @@
 """The policy contract, one owner: what a policy is (`PolicySpec`), its network (`GaussianActor`),
-its file (`save_policy` / `load_policy`) and its exports (bfc.agent.onnx).
+its file (`save_policy` / `load_policy`) and its exports (bfc.agent.onnx; bfc.agent.c_export, flown
+through bfc.agent.c_controller).
 
 Training builds the spec from its config (`PolicySpec.from_config`); a flight, an evaluation and
 an export build everything from the spec in the file.

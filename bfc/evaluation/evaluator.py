@@ -35,9 +35,11 @@ class ProtocolEvaluator:
         self.starts = protocol_starts(e.num_starts, e.validation_seed)
         self.steps = round(e.seconds / self.env.base_env.dt)
         self.threshold, self.hold_seconds = e.threshold, e.hold_seconds
+        self.flights = None
 
     def __call__(self, net) -> dict[str, float]:
         flights = run_flights(self.env, net, self.starts, self.steps, lean=self.lean)
+        self.flights = flights  # the last evaluation's flights (logger.video films one)
         verdict = judge(flights, self.threshold, self.hold_seconds)
         survived = flights.get("alive")[:, -1]
         metrics = {
@@ -48,6 +50,14 @@ class ProtocolEvaluator:
         if error is not None:
             metrics["eval/hover_error"], metrics["eval/attitude_error"] = error, tilt
         return metrics
+
+    def video(self, title: str):
+        """The last evaluation's most tilted start as a TensorBoard video summary (bfc.evaluation.video)."""
+        from bfc.evaluation.video import clips_from_flights, pick_starts, tensorboard_video
+
+        chosen = pick_starts(self.starts, 1, "tilted")
+        clip = clips_from_flights(self.flights, self.starts, chosen, self.threshold, label=title)[0]
+        return tensorboard_video("eval/video", clip)
 
     def close(self) -> None:
         self.env.close()

@@ -52,7 +52,8 @@ def fly(
     """Fly all `starts` (n, 12) at once for `seconds`, never resetting mid-flight.
 
     controller: a policy.pt path (flown as its PolicySpec says: its maps, its control rate, its
-    nominal airframe), a controller name registered in `CONTROLLERS`, or a TensorDictModule
+    nominal airframe), an exported policy.onnx (flown by onnxruntime at its control rate), a
+    controller name registered in `CONTROLLERS`, or a TensorDictModule
     reading `"odometry"`/`"goal"` and writing `"action"` in rad/s (flown at `control_hz`, default
     250 Hz as in the paper).
     goal: (x, y, z) or waypoints [(time_s, (x, y, z)), ...]. noise: a `noise` config section, e.g.
@@ -76,10 +77,12 @@ def fly(
         name = str(controller)
     elif is_module(controller):
         pass
+    elif is_onnx_path(controller):
+        controller, control_hz = onnx_controller(controller, control_hz)
     elif isinstance(controller, (str, bytes)) or hasattr(controller, "__fspath__"):
         spec, controller = load_policy(controller)
     else:
-        allowed = f"a policy.pt path, one of {sorted(CONTROLLERS)} or a TensorDictModule"
+        allowed = f"a policy.pt or .onnx path, one of {sorted(CONTROLLERS)} or a TensorDictModule"
         raise ValueError(f"controller must be {allowed}, got {controller!r}")
     rate = None if spec is not None and control_hz is None else float(control_hz or PROTOCOL_HZ)
     env = make_flight_env(
@@ -102,3 +105,22 @@ def fly(
         return run_flights(env, controller, starts, round(seconds / env.base_env.dt), goal_schedule=schedule)
     finally:
         env.close()
+
+
+def is_onnx_path(controller) -> bool:
+    return (isinstance(controller, (str, bytes)) or hasattr(controller, "__fspath__")) and str(controller).endswith(
+        ".onnx"
+    )
+
+
+def onnx_controller(path, control_hz=None):
+    """An exported policy (bfc.export) as its OnnxController and the rate it was trained at."""
+    from bfc.agent.onnx import OnnxController
+
+    try:
+        controller = OnnxController(path)
+    except ImportError as err:  # the onnx extra: one line, as for any bad input
+        raise ValueError(str(err).splitlines()[0]) from None
+    if control_hz is not None and float(control_hz) != controller.control_hz:
+        raise ValueError(f"{path} was trained at {controller.control_hz:g} Hz and is flown at that rate only")
+    return controller, controller.control_hz

@@ -138,17 +138,24 @@ def score(flights, threshold: float = 0.10, hold_seconds: float = 1.0) -> dict:
     }
 
 
-def robust_results(controllers: dict, names=None, num_starts: int = 100, seed: int = TEST_SEED, protocol=None) -> dict:
-    """{condition: {label: score}} for every controller (label -> anything `fly` takes) and condition."""
+def robust_results(
+    controllers: dict, names=None, num_starts: int = 100, seed: int = TEST_SEED, protocol=None, on_flights=None
+) -> dict:
+    """{condition: {label: score}} for every controller (label -> anything `fly` takes) and condition.
+
+    on_flights(condition, label, flights), if given, sees each flight set before it is dropped
+    (evaluate.py's video=true keeps the poses of a few flights of each row)."""
     seconds = protocol.seconds if protocol is not None else 10.0
     threshold = protocol.threshold if protocol is not None else 0.10
     hold = protocol.hold_seconds if protocol is not None else 1.0
     results = {}
     for name in names or CONDITIONS:
-        results[name] = {
-            label: score(fly_condition(c, name, num_starts, seed, seconds), threshold, hold)
-            for label, c in controllers.items()
-        }
+        results[name] = {}
+        for label, c in controllers.items():
+            flights = fly_condition(c, name, num_starts, seed, seconds)
+            if on_flights is not None:
+                on_flights(name, label, flights)
+            results[name][label] = score(flights, threshold, hold)
     return results
 
 

@@ -200,6 +200,9 @@ class Runner:
         entry = {"frames": self.frames, "wall_seconds": round(self.wall, 1), "unix_seconds": round(time.time(), 2)}
         self.history.append({**entry, **metrics})
         self.log(metrics, self.frames)
+        if self.cfg.logger.video and self.logger is not None:
+            summary = self.evaluator.video(f"frame {self.frames:,}:")
+            self.logger.file_writer.add_summary(summary, self.frames)  # public: SummaryWriter's own writer
         # Success saturates at 1.0 early, so ties are common: among them the more precise hover wins.
         error = metrics.get("eval/hover_error", math.inf)
         better = (metrics["eval/success_rate"], -error) >= (self.best, -self.best_error)
@@ -242,6 +245,13 @@ class Runner:
             # saves TorchRL's record package's 0.4 s of start-up); events go to <run dir>/tb
             from torch.utils.tensorboard import SummaryWriter
 
+            if cfg.logger.video:  # no renderer: one line now, not a failure at the first evaluation
+                from bfc.evaluation.video import RendererUnavailable, check_renderer
+
+                try:
+                    check_renderer()
+                except RendererUnavailable as err:
+                    raise ValueError(f"logger.video=true: {err}") from None
             self.logger = SummaryWriter(log_dir=str(run_dir / "tb"))
             if ckpt is None:
                 text = "```\n" + OmegaConf.to_yaml(cfg, resolve=True) + "\n```"

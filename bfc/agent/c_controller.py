@@ -1,0 +1,191 @@
+"""`CController`: fly a C-exported policy (bfc.agent.c_export) from Python, through ctypes.
+
+So that the header a flight computer compiles is the code the simulator flies: `CController`
+compiles it with the system C compiler into a shared library (with a small wrapper that runs
+`bfc_policy_step` over a batch of drones) and keeps the per-drone state, the previous command
+and the integral, exactly as `OnnxController` does. `build_library` is the compile step alone.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import os
+import shutil
+import subprocess
+import tempfile
+import weakref
+from pathlib import Path
+
+import numpy as np
+import torch
+from tensordict import TensorDictBase
+from tensordict.nn import TensorDictModuleBase
+
+from bfc import keys
+from bfc.agent.c_export import PREFIX
+
+CFLAGS = ("-std=c99", "-O2", "-Wall", "-Wextra", "-Werror")
+_HEADER_COPY = "bfc_exported_policy.h"
+# the library's entry points: a batch loop over the header's step, and its settings
+_WRAPPER = """#include <stddef.h>
+#include "{header}"
+
+void bfc_lib_step_rows(int n, const float *odometry, const float *goal, const float *previous,
+        const float *integral_in, float *speeds, float *integral_out)
+{{
+    int r;
+    for (r = 0; r < n; ++r) {{
+        {p}_step(odometry + 18 * r, goal + 3 * r, previous + 4 * r, integral_in ? integral_in + 3 * r : NULL,
+            speeds + 4 * r, integral_out ? integral_out + 3 * r : NULL);
+    }}
+}}
+
+double bfc_lib_setting(int which)
+{{
+    switch (which) {{
+    case 0: return {P}_CONTROL_HZ;
+    case 1: return {P}_HOVER_SPEED;
+    case 2: return {P}_MAX_ROTOR_SPEED;
+    case 3: return {P}_HAS_INTEGRAL;
+    case 4: return {P}_OBSERVATION_SIZE;
+    default: return {P}_MACS;
+    }}
+}}
+
+const char *bfc_lib_action_map(void) {{ return {P}_ACTION_MAP; }}
+"""
+
+
+def find_compiler(cc: str | None = None) -> str:
+    """The C compiler to use: `cc`, else $CC, else `cc`; FileNotFoundError (one line) if absent."""
+    name = cc or os.environ.get("CC") or "cc"
+    found = shutil.which(name)
+    if found is None:
+        raise FileNotFoundError(f"no C compiler {name!r} on the PATH: install one (e.g. apt-get install gcc) or set CC")
+    return found
+
+
+def build_library(header_path, out_dir, cc: str | None = None) -> Path:
+    """Compile the exported header at `header_path` into `out_dir`/libbfc_policy.so
+    (`cc -std=c99 -O2 -Wall -Wextra -Werror -shared -fPIC`); RuntimeError with the compiler's
+    first error line when it fails."""
+    header_path, out_dir = Path(header_path), Path(out_dir)
+    if not header_path.is_file():
+        raise FileNotFoundError(f"no C header at {header_path}: write one with python -m bfc.export policy.pt policy.h")
+    compiler = find_compiler(cc)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    shutil.copyfile(header_path, out_dir / _HEADER_COPY)
+    source = out_dir / "bfc_policy_lib.c"
+    source.write_text(_WRAPPER.format(header=_HEADER_COPY, p=PREFIX, P=PREFIX.upper()))
+    library = out_dir / "libbfc_policy.so"
+    command = [compiler, *CFLAGS, "-shared", "-fPIC", str(source), "-o", str(library), "-lm"]
+    result = subprocess.run(command, capture_output=True, text=True)
+    if result.returncode != 0:
+        first = next((line for line in result.stderr.splitlines() if "error" in line), result.stderr.strip()[:300])
+        raise RuntimeError(f"compiling {header_path} failed: {first}")
+    return library
+
+
+def _pointer(array: np.ndarray | None):
+    return None if array is None else array.ctypes.data_as(ctypes.c_void_p)
+
+
+class CController(TensorDictModuleBase):
+    """Flies an exported C header: reads `"odometry"` and `"goal"`, writes `"action"` (motor speeds,
+    rad/s), and feeds its own last command back as `previous_motor_speeds` (and, for a policy
+    with a position integral, its own integral), as `OnnxController` does.
+
+    `fly(CController("policy.h"), starts, control_hz=controller.control_hz)` flies it as trained.
+    The state restarts from hover (and a zero integral) at the first call, when the batch size
+    changes, after `reset()` / `begin_flight()`, and per env where the input carries `"is_init"`
+    or a `"step_count"` of 0. cc: the C compiler (default $CC, else `cc`).
+    """
+
+    def __init__(self, header_path, cc: str | None = None):
+        super().__init__()
+        self.in_keys = [keys.ODOMETRY, keys.GOAL]
+        self.out_keys = [keys.ACTION]
+        self.path = Path(header_path)
+        build_dir = tempfile.mkdtemp(prefix="bfc-c-policy-")
+        self._cleanup = weakref.finalize(self, shutil.rmtree, build_dir, True)
+        self.library_path = build_library(self.path, build_dir, cc=cc)
+        lib = ctypes.CDLL(str(self.library_path))
+        lib.bfc_lib_step_rows.argtypes = [ctypes.c_int] + [ctypes.c_void_p] * 6
+        lib.bfc_lib_step_rows.restype = None
+        lib.bfc_lib_setting.argtypes = [ctypes.c_int]
+        lib.bfc_lib_setting.restype = ctypes.c_double
+        lib.bfc_lib_action_map.restype = ctypes.c_char_p
+        self._lib = lib
+        self.control_hz = lib.bfc_lib_setting(0)
+        self.hover_speed = lib.bfc_lib_setting(1)
+        self.max_rotor_speed = lib.bfc_lib_setting(2)
+        self.metadata = {
+            "control_hz": self.control_hz,
+            "hover_speed": self.hover_speed,
+            "max_rotor_speed": self.max_rotor_speed,
+            "position_integral": bool(lib.bfc_lib_setting(3)),
+            "observation_size": int(lib.bfc_lib_setting(4)),
+            "macs": int(lib.bfc_lib_setting(5)),
+            "action_map": lib.bfc_lib_action_map().decode(),
+        }
+        self.previous_motor_speeds: np.ndarray | None = None
+        self.integral: np.ndarray | None = None
+
+    def reset(self) -> None:
+        """Forget the previous command: the next call starts every env from hover."""
+        self.previous_motor_speeds = None
+        self.integral = None
+
+    def begin_flight(self) -> None:
+        self.reset()
+
+    def _reset_mask(self, td: TensorDictBase) -> np.ndarray | None:  # as OnnxController's
+        if "is_init" in td.keys():
+            return td.get("is_init").reshape(-1).cpu().numpy().astype(bool)
+        if "step_count" in td.keys():
+            return (td.get("step_count").reshape(-1) == 0).cpu().numpy()
+        return None
+
+    def step(self, odometry: np.ndarray, goal: np.ndarray, previous: np.ndarray, integral: np.ndarray | None = None):
+        """One control step for n drones, as the ONNX graph: (motor speeds (n, 4), the next
+        integral (n, 3), or None for a policy without one). Plain float32 arrays in and out."""
+        odometry = np.ascontiguousarray(odometry, dtype=np.float32)
+        n = odometry.shape[0]
+        goal = np.ascontiguousarray(np.broadcast_to(goal, (n, 3)), dtype=np.float32)
+        previous = np.ascontiguousarray(previous, dtype=np.float32)
+        if odometry.shape != (n, 18) or previous.shape != (n, 4):
+            raise ValueError(f"odometry must be (n, 18) and previous (n, 4), got {odometry.shape}, {previous.shape}")
+        speeds = np.empty((n, 4), dtype=np.float32)
+        integral_out = None
+        if self.metadata["position_integral"]:
+            integral = None if integral is None else np.ascontiguousarray(integral, dtype=np.float32).reshape(n, 3)
+            integral_out = np.empty((n, 3), dtype=np.float32)
+        else:
+            integral = None
+        self._lib.bfc_lib_step_rows(
+            n, _pointer(odometry), _pointer(goal), _pointer(previous), _pointer(integral), _pointer(speeds),
+            _pointer(integral_out),
+        )
+        return speeds, integral_out
+
+    def forward(self, td: TensorDictBase) -> TensorDictBase:
+        odometry = td.get(keys.ODOMETRY)
+        goal = td.get(keys.GOAL)
+        n = odometry.shape[0]
+        goal = goal.expand(n, 3) if goal.ndim == 1 else goal
+        previous, integral = self.previous_motor_speeds, self.integral
+        if previous is None or previous.shape[0] != n:
+            previous = np.full((n, 4), self.hover_speed, dtype=np.float32)
+            integral = np.zeros((n, 3), dtype=np.float32)
+        mask = self._reset_mask(td)
+        if mask is not None and mask.any():
+            previous, integral = previous.copy(), integral.copy()
+            previous[mask] = self.hover_speed
+            integral[mask] = 0.0
+        speeds, next_integral = self.step(
+            odometry.detach().cpu().numpy(), goal.detach().cpu().numpy(), previous, integral
+        )
+        self.previous_motor_speeds = speeds
+        self.integral = next_integral if next_integral is not None else integral
+        td.set(keys.ACTION, torch.from_numpy(speeds.copy()).to(odometry.device))
+        return td
