@@ -62,9 +62,9 @@ def check(cfg) -> None:
     s = cfg.suite
     if cfg.policy is not None and cfg.controller is not None:
         raise ValueError(f"suite={s} flies one policy= or controller= (the baselines go in baselines=[...])")
-    if s == "robust" and cfg.runs is not None:
+    if s != "paper" and cfg.runs is not None:
         raise ValueError("runs only applies with suite=paper")
-    if cfg.policy is None and cfg.controller is None and (cfg.runs is None or s == "robust"):
+    if cfg.policy is None and cfg.controller is None and (cfg.runs is None or s != "paper"):
         more = " and/or runs=<directory of runs>" if s == "paper" else ""
         raise ValueError(f"suite={s} needs policy=<path> or controller=<name>{more}")
     unused = [k for k in ("noise", "goal", "figures") if _changed(cfg, k)]
@@ -91,8 +91,10 @@ def check_sim(cfg) -> None:
         if _changed(cfg, "rotorpy_airframe"):
             raise ValueError("rotorpy_airframe only applies with sim=rotorpy")
         return
-    if cfg.suite == "paper":
-        raise ValueError("sim=rotorpy flies the protocol (no suite) or suite=robust; suite=paper flies MuJoCo only")
+    if cfg.suite in ("paper", "hardware"):
+        raise ValueError(
+            f"sim=rotorpy flies the protocol (no suite) or suite=robust; suite={cfg.suite} flies MuJoCo only"
+        )
     if _changed(cfg, "noise"):
         raise ValueError("noise does not apply with sim=rotorpy (RotorPy flights see the true odometry)")
     from bfc.evaluation.rotorpy_sim import require_rotorpy
@@ -113,7 +115,7 @@ def check_video(cfg) -> None:
     from bfc.evaluation.video import check_options, writer_missing
 
     if cfg.suite == "paper" or cfg.sim != "mujoco":
-        raise ValueError("video=true films a single evaluation or suite=robust flown in MuJoCo (sim=mujoco)")
+        raise ValueError("video=true films a single evaluation, suite=robust or suite=hardware flown in MuJoCo")
     c = cfg
     check_options(
         c.video_fps, c.video_width, c.video_height, c.video_starts, c.video_camera, c.video_pick, c.video_seconds
@@ -146,7 +148,7 @@ def main(cfg) -> None:
     out = Path(HydraConfig.get().runtime.output_dir)
     try:
         check(cfg)
-        if cfg.suite == "robust":
+        if cfg.suite in ("robust", "hardware"):
             return run_robust(cfg, out)
         if cfg.suite is not None:
             return run_suite(cfg, out)
@@ -208,21 +210,29 @@ def run_suite(cfg, out: Path) -> None:
 def robust_keeper(kept: dict, label: str, count: int, pick: str, threshold: float, num_starts: int, seed: int):
     """An `on_flights` for `robust_results`: keeps, in kept[row], the clips of `label`'s chosen starts
     of each row (the other controllers' flights are not filmed)."""
-    from bfc.evaluation.suites import CONDITIONS, START_SETS
+    from bfc.evaluation.suites import START_SETS, condition
     from bfc.evaluation.video import clips_from_flights, pick_starts
 
     def keep(name: str, flown: str, flights) -> None:
         if flown != label:
             return
-        starts = START_SETS[CONDITIONS[name].starts](num_starts, seed)
+        starts = START_SETS[condition(name).starts](num_starts, seed)
         kept[name] = clips_from_flights(flights, starts, pick_starts(starts, count, pick), threshold, label=name)
 
     return keep
 
 
-def run_robust(cfg, out: Path) -> None:
-    from bfc.evaluation.suites import robust_figure, robust_results, robust_table
+TITLES = {
+    "robust": "Robustness: start sets, model mismatch and wind",
+    "hardware": "What hardware brings: latency, estimator noise and gyro bias, a throw",
+}
 
+
+def run_robust(cfg, out: Path) -> None:
+    """suite=robust (robust.md/.json/.png) or suite=hardware (hardware.md/.json/.png)."""
+    from bfc.evaluation.suites import SUITES, robust_figure, robust_results, robust_table
+
+    suite = cfg.suite
     controller = cfg.controller or cfg.policy
     label = cfg.controller or "bfc"
     controllers = {label: controller, **{b: b for b in cfg.baselines if b != label}}
@@ -236,11 +246,12 @@ def run_robust(cfg, out: Path) -> None:
 
         results = robust_results_rotorpy(controllers, None, e.num_starts, e.seed, e, cfg.rotorpy_airframe)
     else:
-        results = robust_results(controllers, num_starts=e.num_starts, seed=e.seed, protocol=e, on_flights=keep)
-    (out / "robust.json").write_text(json.dumps(results, indent=1))
-    robust_figure(results, out / "robust.png")
+        names = list(SUITES[suite])
+        results = robust_results(controllers, names, num_starts=e.num_starts, seed=e.seed, protocol=e, on_flights=keep)
+    (out / f"{suite}.json").write_text(json.dumps(results, indent=1))
+    robust_figure(results, out / f"{suite}.png")
     lines = [
-        "# Robustness: start sets, model mismatch and wind",
+        f"# {TITLES[suite]}",
         "",
         f"Controller: `{controller}`. Simulator: {SIM_NOTES[cfg.sim].format(airframe=cfg.rotorpy_airframe)}. "
         f"Command: `python evaluate.py {' '.join(sys.argv[1:])}`. "
@@ -250,11 +261,11 @@ def run_robust(cfg, out: Path) -> None:
         "",
         *robust_table(results),
         "",
-        "![robustness](robust.png)",
+        f"![{suite}]({suite}.png)",
         "",
     ]
-    (out / "robust.md").write_text("\n".join(lines))
-    print(f"robust.md written to {out} in {time.perf_counter() - t0:.0f} s")
+    (out / f"{suite}.md").write_text("\n".join(lines))
+    print(f"{suite}.md written to {out} in {time.perf_counter() - t0:.0f} s")
     if cfg.video:
         film(cfg, out, kept)
 

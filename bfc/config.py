@@ -17,6 +17,7 @@ its old spelling with one line naming the new one.
 from __future__ import annotations
 
 import dataclasses
+import math
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -31,7 +32,7 @@ CONF_DIR = Path(__file__).resolve().parents[1] / "conf"  # the repository's Hydr
 
 ABLATIONS = ("ppo", "jd", "css", "tdts", "jd_css", "jd_tdts", "css_tdts", "jd_css_tdts")
 ALGORITHMS = ("ppo", "trpo", "ddpg")  # conf/algo/; bfc.training.learners.make_learner builds each
-EVALUATION_SUITES = ("paper", "robust")  # evaluate.py suite=...
+EVALUATION_SUITES = ("paper", "robust", "hardware")  # evaluate.py suite=...
 SIMULATORS = ("mujoco", "rotorpy")  # evaluate.py sim=... (rotorpy: bfc/evaluation/rotorpy_sim.py)
 ROTORPY_AIRFRAMES = ("bfc", "rotorpy")  # evaluate.py rotorpy_airframe=... (docs/evaluation.md)
 COLLECTORS = ("fused", "torchrl")
@@ -116,6 +117,19 @@ class NoiseConfig:
     std: Any = 0.05  # a number or 18 numbers
     theta: float = 1.0  # OU mean reversion (1/s)
     elements: Any = "all"  # all | position | [indices]
+    # a constant offset per episode (a gyro's bias, an estimator's drift), N(0, bias^2) drawn at
+    # each reset: a number or 18 numbers (applies to every element, whatever `elements` says)
+    bias: Any = 0.0
+
+
+@dataclass
+class LatencyConfig:
+    """What a flight computer adds (bfc/transforms/latency.py): odometry `observation_steps`
+    control steps old, commands applied `action_steps` late; a number, or [low, high] for a delay
+    drawn per env at each reset (uniform over the integers). 0: off."""
+
+    observation_steps: Any = 0
+    action_steps: Any = 0
 
 
 @dataclass
@@ -279,6 +293,7 @@ class Config:
     tdts: TDTSConfig = field(default_factory=TDTSConfig)
     curriculum: CurriculumConfig = field(default_factory=CurriculumConfig)
     noise: NoiseConfig = field(default_factory=NoiseConfig)
+    latency: LatencyConfig = field(default_factory=LatencyConfig)
     model: ModelConfig = field(default_factory=ModelConfig)
     algo: AlgoConfig = field(default_factory=AlgoConfig)
     collector: CollectorConfig = field(default_factory=CollectorConfig)
@@ -300,7 +315,9 @@ class EvaluateConfig:
 
     policy: str | None = None  # path to a policy.pt
     controller: str | None = None  # a classical controller name (bfc.evaluation.CONTROLLERS)
-    suite: str | None = None  # paper: protocol, accuracy, noise, waypoints, baselines (report.md); robust: robust.md
+    # paper: protocol, accuracy, noise, waypoints, baselines (report.md); robust: robust.md;
+    # hardware: hardware.md (latency, estimator noise and gyro bias, a throw)
+    suite: str | None = None
     runs: str | None = None  # suite=paper: a directory of training runs for Table 2 and learning curves
     baselines: list[str] = field(default_factory=lambda: ["mpc", "lee"])  # suites: flown beside it
     figures: bool = True  # single evaluation: flight figures beside results.json
@@ -526,6 +543,21 @@ def validate(cfg) -> None:
     )
     check(cfg.model.init_std > 0, "model.init_std", "> 0", cfg.model.init_std)
     check(cfg.noise.kind in ("none", "gaussian", "ou"), "noise.kind", "none, gaussian or ou", cfg.noise.kind)
+    bias = cfg.noise.bias
+    values = list(bias) if isinstance(bias, (list, tuple)) or OmegaConf.is_list(bias) else [bias]
+    check(
+        len(values) in (1, 18) and all(isinstance(v, (int, float)) and 0 <= v < math.inf for v in values),
+        "noise.bias",
+        "a number >= 0 or 18 of them",
+        bias,
+    )
+    if cfg.noise.kind == "none":
+        check(
+            max(values) == 0,
+            "noise.bias",
+            "0 with noise.kind=none (a bias alone: noise.kind=gaussian noise.std=0)",
+            bias,
+        )
     check(cfg.eval.interval_frames > 0, "eval.interval_frames", "> 0", cfg.eval.interval_frames)
     check(cfg.eval.early_frames >= 0, "eval.early_frames", ">= 0 (0: off)", cfg.eval.early_frames)
     check(cfg.eval.early_interval_frames > 0, "eval.early_interval_frames", "> 0", cfg.eval.early_interval_frames)

@@ -3,7 +3,8 @@ make_flight_env: the env a flight from given starts runs in (evaluation, trainin
 
 Train, evaluate, notebooks and tests all build envs here. Order matters and is fixed:
     TDTS (before CSS, whose episode bookkeeping must see TDTS's done) -> JD -> CSS -> given starts
-    -> odometry noise -> policy observation -> motor-speed action -> episode statistics (training).
+    -> odometry noise -> latency (odometry, then commands) -> policy observation -> motor-speed action
+    -> episode statistics (training).
 The policy's observation and action maps come from a PolicySpec (bfc.agent): the config's in
 training, a policy file's in a flight.
 """
@@ -21,12 +22,14 @@ from bfc import keys
 from bfc.agent import PolicySpec
 from bfc.checks import check
 from bfc.config import jd_decay_frames
-from bfc.envs import REFERENCE_PHYSICS_DT, QuadrotorEnv
+from bfc.envs import REFERENCE_PHYSICS_DT, AirframeParams, QuadrotorEnv
 from bfc.transforms import (
+    ActionDelay,
     ControlledStartingState,
     GaussianOdometryNoise,
     GivenStarts,
     JumpingDistribution,
+    ObservationDelay,
     OUOdometryNoise,
     TimeDependentTerminalState,
 )
@@ -74,11 +77,12 @@ def make_noise(noise, num_envs: int, dt: float):
     kind = noise.get("kind", "none")
     if kind == "none":
         return None
-    std, elements = noise.get("std", 0.05), noise.get("elements", "all")
+    std, elements, bias = noise.get("std", 0.05), noise.get("elements", "all"), noise.get("bias", 0.0)
     if kind == "gaussian":
-        return GaussianOdometryNoise(num_envs, std=std, elements=elements)
+        return GaussianOdometryNoise(num_envs, std=std, elements=elements, bias=bias)
     if kind == "ou":
-        return OUOdometryNoise(num_envs, std=std, theta=float(noise.get("theta", 1.0)), dt=dt, elements=elements)
+        theta = float(noise.get("theta", 1.0))
+        return OUOdometryNoise(num_envs, std=std, theta=theta, dt=dt, elements=elements, bias=bias)
     raise ValueError(f"noise.kind must be one of none, gaussian, ou, got {kind!r}")
 
 
@@ -92,6 +96,7 @@ def make_env(
     policy_io: bool = True,
     seed: int | None = None,
     airframe: dict | None = None,
+    latency=None,
 ) -> BFCEnv:
     """Build the env for `cfg`.
 
@@ -103,7 +108,9 @@ def make_env(
     policy_io=False leaves out the policy's observation and action maps, for controllers that
     read `"odometry"` and `"goal"` and command motor speeds in rad/s themselves;
     airframe overrides AirframeParams fields of the flown body only (model mismatch): the policy's
-    observation and action maps keep the nominal airframe of `cfg.env.airframe`.
+    observation and action maps keep the nominal airframe of `cfg.env.airframe`;
+    latency overrides `cfg.latency` ({"observation_steps": k, "action_steps": k}, each a number or
+    [low, high]).
     """
     base = make_base_env(cfg, num_envs, airframe, randomize=samplers)
     n, dt = base.num_envs, base.dt
@@ -140,7 +147,24 @@ def make_env(
         )
     policy = PolicySpec.from_config(cfg) if policy_io else None
     noise = cfg.noise if noise is None else noise
-    return _assemble(base, ts, policy=policy, noise=noise, given_starts=given_starts, statistics=samplers, seed=seed)
+    latency = _plain(cfg.latency) if latency is None else latency
+    delays = _delays(latency, base.num_envs, AirframeParams(**(_plain(cfg.env.airframe) or {})).hover_speed)
+    return _assemble(
+        base, ts, policy=policy, noise=noise, given_starts=given_starts, statistics=samplers, seed=seed, delays=delays
+    )
+
+
+def _delays(latency, num_envs: int, hover_speed: float) -> list:
+    """The latency transforms for a `latency` section: odometry first, then commands."""
+    latency = _plain(latency) or {}
+    unknown = sorted(set(latency) - {"observation_steps", "action_steps"})
+    check(not unknown, "latency", "observation_steps and action_steps", unknown)
+    out = []
+    if latency.get("observation_steps", 0) not in (0, [0, 0]):
+        out.append(ObservationDelay(num_envs, latency["observation_steps"]))
+    if latency.get("action_steps", 0) not in (0, [0, 0]):
+        out.append(ActionDelay(num_envs, latency["action_steps"], initial=hover_speed))
+    return out
 
 
 def make_flight_env(
@@ -154,6 +178,9 @@ def make_flight_env(
     noise=None,
     num_threads: int | None = None,
     seed: int | None = None,
+    observation_delay: float = 0.0,
+    action_delay: float = 0.0,
+    start_motors: str = "rest",
 ) -> BFCEnv:
     """An env for flights from given starts (`GivenStarts`): no samplers, no randomisation, no
     episode statistics, the task's termination, episodes of `seconds`.
@@ -162,7 +189,9 @@ def make_flight_env(
     and nominal airframe it flies (a policy file is always flown as it was trained); None: no
     policy maps, at `control_hz` (controllers read `"odometry"` and command rad/s).
     airframe: AirframeParams fields of the flown body that differ from the nominal one (model
-    mismatch); noise: a `noise` config section, corrupting only what the controller sees.
+    mismatch); noise: a `noise` config section, corrupting only what the controller sees;
+    observation_delay / action_delay: seconds of latency (bfc.transforms.latency), in whole control
+    steps (rounded down); start_motors: "rest" or "hover" at release.
     """
     if policy is not None and control_hz is not None and float(control_hz) != policy.control_hz:
         raise ValueError(f"this policy was trained at {policy.control_hz:g} Hz and is flown at that rate only")
@@ -176,18 +205,28 @@ def make_flight_env(
         episode_seconds=float(seconds),
         airframe={**nominal, **dict(airframe or {})},
         num_threads=num_threads,
+        start_motors=start_motors,
     )
-    return _assemble(base, [], policy=policy, noise=noise, given_starts=True, statistics=False, seed=seed)
+    steps = {
+        "observation_steps": int(observation_delay / base.dt + 1e-6),
+        "action_steps": int(action_delay / base.dt + 1e-6),
+    }
+    delays = _delays(steps, base.num_envs, AirframeParams(**nominal).hover_speed)
+    return _assemble(
+        base, [], policy=policy, noise=noise, given_starts=True, statistics=False, seed=seed, delays=delays
+    )
 
 
-def _assemble(base: QuadrotorEnv, ts: list, *, policy, noise, given_starts, statistics, seed) -> BFCEnv:
-    """base env + the start samplers `ts` + given starts + noise + the policy's maps + statistics."""
+def _assemble(base: QuadrotorEnv, ts: list, *, policy, noise, given_starts, statistics, seed, delays=()) -> BFCEnv:
+    """base env + the start samplers `ts` + given starts + noise + latency + the policy's maps +
+    statistics (the command's delay acts on rad/s: TorchRL runs inverse transforms last to first)."""
     n, dt = base.num_envs, base.dt
     if given_starts:
         ts.append(GivenStarts(n))
     noise_t = make_noise(noise, n, dt)
     if noise_t is not None:
         ts.append(noise_t)
+    ts.extend(delays)
     if policy is not None:
         ts.append(policy.make_observation_map(n, dt))
         ts.append(policy.make_action_map())

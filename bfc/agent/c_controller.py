@@ -163,7 +163,12 @@ class CController(TensorDictModuleBase):
         else:
             integral = None
         self._lib.bfc_lib_step_rows(
-            n, _pointer(odometry), _pointer(goal), _pointer(previous), _pointer(integral), _pointer(speeds),
+            n,
+            _pointer(odometry),
+            _pointer(goal),
+            _pointer(previous),
+            _pointer(integral),
+            _pointer(speeds),
             _pointer(integral_out),
         )
         return speeds, integral_out

@@ -228,7 +228,8 @@ def generate_c(spec: PolicySpec, net, source: str = "policy.pt", name: str = "po
         " * The deterministic policy (the Gaussian's mean, no sampling) with its observation and action",
         " * maps, for one drone per call, as the ONNX export computes it (docs/export.md):",
         f" *   observation  {', '.join(parts)}",
-        f" *   network      MLP {sizes}, {spec.activation}" + (", tanh on the mean" if spec.squash else "")
+        f" *   network      MLP {sizes}, {spec.activation}"
+        + (", tanh on the mean" if spec.squash else "")
         + f" ({macs} multiply-adds)",
         f" *   action map   {action.action_map}; the output clipped to [0, {P}_MAX_ROTOR_SPEED]",
         " *",
@@ -248,7 +249,9 @@ def generate_c(spec: PolicySpec, net, source: str = "policy.pt", name: str = "po
         f" * Stack: about {4 * (2 * obs.size + 2 * max(widths) + 16)} bytes. No allocation; needs <math.h> (link -lm).",
         " */",
     ]
-    head = "\n".join(comment) + f"""
+    head = (
+        "\n".join(comment)
+        + f"""
 #ifndef {P}_H
 #define {P}_H
 
@@ -268,7 +271,7 @@ def generate_c(spec: PolicySpec, net, source: str = "policy.pt", name: str = "po
 #define {P}_HOVER_SPEED {c_float(action.hover_speed)} /* rad/s: previous_motor_speeds after a reset */
 #define {P}_MAX_ROTOR_SPEED {c_float(action.max_speed)} /* rad/s: the top of the output range */
 #define {P}_HAS_INTEGRAL {int(integral)} /* 1: integral_in / integral_out carry the position-error integral */
-#define {P}_ACCELERATION_USED {int(spec.include_acceleration and obs.kind == 'heading')}
+#define {P}_ACCELERATION_USED {int(spec.include_acceleration and obs.kind == "heading")}
 #define {P}_ACTION_MAP "{action.action_map}"
 #define {P}_OBSERVATION "{obs.kind}"
 
@@ -284,6 +287,7 @@ def generate_c(spec: PolicySpec, net, source: str = "policy.pt", name: str = "po
 #define {P}_THRUST_RATIO_MAX {c_float((action.max_speed / action.hover_speed) ** 2)} /* (max / hover)^2 */
 
 """
+    )
     weights = [f"/* ---- the actor's weights: MLP {sizes} ---- */\n"]
     for i, (w, b, act, _) in enumerate(layers):
         what = f"then {act}" if act else ("the mean action, then tanh" if spec.squash else "the mean action")

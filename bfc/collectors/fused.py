@@ -22,10 +22,12 @@ from bfc import keys
 from bfc.agent import GaussianActor
 from bfc.envs.quadrotor import FLAT_GOAL, FLAT_MOTORS, FLAT_ODOMETRY, FLAT_QUATERNION, FLAT_REWARD
 from bfc.transforms import (
+    ActionDelay,
     ControlledStartingState,
     GivenStarts,
     JumpingDistribution,
     MotorSpeedAction,
+    ObservationDelay,
     OdometryNoise,
     PolicyObservation,
     TimeDependentTerminalState,
@@ -38,6 +40,8 @@ _KNOWN = (
     ControlledStartingState,
     GivenStarts,
     OdometryNoise,
+    ObservationDelay,
+    ActionDelay,
     PolicyObservation,
     MotorSpeedAction,
     RewardSum,
@@ -87,6 +91,7 @@ class FusedCollector:
             one(PolicyObservation),
             one(MotorSpeedAction),
         )
+        self.observation_delay, self.action_delay = one(ObservationDelay), one(ActionDelay)
         if None in (self.observation, self.action_map, one(RewardSum), one(StepCounter)):
             raise ValueError(
                 "collector.kind=fused needs make_env's training stack: the policy maps and episode statistics"
@@ -182,7 +187,8 @@ class FusedCollector:
     def _step(self, command: torch.Tensor):
         """One control step of the env and every transform, in the stack's order (TorchRL's
         `env.step` and `step_mdp`): the new carrier, and (outputs, terminated, truncated)."""
-        flat, terminated, truncated = self.base.advance(command)
+        applied = command if self.action_delay is None else self.action_delay.push(command)
+        flat, terminated, truncated = self.base.advance(applied)
         if self.tdts is not None:
             fire = self.tdts.advance(flat[:, 0:3], flat[:, FLAT_GOAL])
             if self.tdts.as_terminal:
@@ -196,6 +202,8 @@ class FusedCollector:
         odometry = flat[:, FLAT_ODOMETRY]
         if self.noise is not None:
             odometry = self.noise.corrupt(odometry)
+        if self.observation_delay is not None:
+            odometry = self.observation_delay.push(odometry)
         self.obs = self.observation.advance(command, odometry, flat[:, FLAT_GOAL])
         self.truth, self.odometry = flat, odometry
         self.episode_reward = self.episode_reward + flat[:, FLAT_REWARD]
@@ -214,6 +222,10 @@ class FusedCollector:
         odometry = flat[:, FLAT_ODOMETRY]
         if self.noise is not None:
             odometry = self.noise.corrupt(odometry, done)
+        if self.observation_delay is not None:
+            odometry = self.observation_delay.restart_and_read(done, odometry)
+        if self.action_delay is not None:
+            self.action_delay.restart(done, torch.full_like(self.action_delay.queue[:, 0], self.action_delay.initial))
         obs = self.observation.restart(done, odometry, flat[:, FLAT_GOAL])
         m = done.unsqueeze(-1)
         self.truth = torch.where(m, flat, self.truth)

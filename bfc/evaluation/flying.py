@@ -48,6 +48,9 @@ def fly(
     airframe: dict | None = None,
     external_force=None,
     physics_dt: float = REFERENCE_PHYSICS_DT,
+    observation_delay: float = 0.0,
+    action_delay: float = 0.0,
+    start_motors: str = "rest",
 ) -> TensorDict:
     """Fly all `starts` (n, 12) at once for `seconds`, never resetting mid-flight.
 
@@ -63,6 +66,8 @@ def fly(
     external_force: a constant force in newtons, world frame, (3,) or one per start (n, 3).
     physics_dt: MuJoCo's step, the reference 0.002 s by default, whatever step a policy was
     trained with (its control rate is its own).
+    observation_delay / action_delay: seconds of latency, in whole control steps rounded down
+    (bfc.transforms.latency); start_motors: "rest" or "hover" at release.
     Returns a TensorDict (n, T); see `run_flights`.
     """
     from bfc.controllers import CONTROLLERS
@@ -94,6 +99,9 @@ def fly(
         airframe=airframe,
         noise=noise,
         seed=seed,
+        observation_delay=observation_delay,
+        action_delay=action_delay,
+        start_motors=start_motors,
     )
     try:
         if external_force is not None:

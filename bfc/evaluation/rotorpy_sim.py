@@ -427,7 +427,7 @@ def robust_results_rotorpy(
     threshold = protocol.threshold if protocol is not None else 0.10
     hold = protocol.hold_seconds if protocol is not None else 1.0
     results = {}
-    for name in names or CONDITIONS:
+    for name in CONDITIONS if names is None else names:
         results[name] = {}
         for label, c in controllers.items():
             t0 = time.perf_counter()

@@ -7,9 +7,15 @@ Start sets (each (n, 12) in the `"start_state"` layout, x and y uniform in [-2, 
               direction and spinning at up to 2 rad/s about each body axis
     any       a uniformly random attitude (upside down included), z 1.5-3 m, at rest
     ground    on the floor, level, any yaw, at rest (take-off)
+    throw     thrown: any attitude (uniform), z 2-4 m, 5 m/s in a random horizontal direction
+              tilted -20 to +45 deg from the horizontal, spinning at up to 5 rad/s (a random
+              axis); flown with the motors at hover at release (`HARDWARE`)
 Conditions (the protocol's starts; the flown body differs from the one the controller knows):
     mass +-30% (body_mass), motor constant +-20%, motor time constants x3, inertia x1.5, and a
     constant 1 N wind in a random horizontal direction per start.
+What a flight computer adds (`HARDWARE`, the rows of `evaluate.py suite=hardware`): odometry 10-50
+ms old, commands applied 10-20 ms late (whole control steps, rounded down: bfc.transforms.latency),
+a state estimate with noise and a per-flight gyro bias (`ESTIMATOR_NOISE`), and the throw.
 
 Every set is drawn from its own CPU generator seeded by (seed, set name), so the same seed gives
 the same starts on every machine; seed 0 is the test set the docs report (TEST_SEED).
@@ -73,7 +79,31 @@ def ground_starts(n: int = 100, seed: int = TEST_SEED) -> torch.Tensor:
     return s.float()
 
 
-START_SETS = {"protocol": protocol_starts, "harsh": harsh_starts, "any": any_starts, "ground": ground_starts}
+def throw_starts(n: int = 100, seed: int = TEST_SEED) -> torch.Tensor:
+    g = _generator("throw", seed)
+    q = torch.randn(n, 4, generator=g, dtype=torch.float64)
+    q = q / q.norm(dim=-1, keepdim=True)
+    s = torch.zeros(n, 12, dtype=torch.float64)
+    s[:, 0], s[:, 1], s[:, 2] = _uniform(g, n, -2, 2), _uniform(g, n, -2, 2), _uniform(g, n, 2.0, 4.0)
+    s[:, 3:6] = quat_to_euler(q)
+    heading = _uniform(g, n, -math.pi, math.pi)
+    elevation = _uniform(g, n, -20, 45) * math.pi / 180
+    s[:, 6], s[:, 7] = elevation.cos() * heading.cos(), elevation.cos() * heading.sin()
+    s[:, 8] = elevation.sin()
+    s[:, 6:9] *= THROW_SPEED
+    axis = torch.randn(n, 3, generator=g, dtype=torch.float64)
+    s[:, 9:12] = axis / axis.norm(dim=-1, keepdim=True) * _uniform(g, n, 0, THROW_SPIN).unsqueeze(-1)
+    return s.float()
+
+
+THROW_SPEED, THROW_SPIN = 5.0, 5.0  # m/s, rad/s
+START_SETS = {
+    "protocol": protocol_starts,
+    "harsh": harsh_starts,
+    "any": any_starts,
+    "ground": ground_starts,
+    "throw": throw_starts,
+}
 
 
 def horizontal_wind(n: int, newtons: float = 1.0, seed: int = TEST_SEED) -> torch.Tensor:
@@ -89,6 +119,10 @@ class Condition:
     starts: str = "protocol"
     airframe: dict = field(default_factory=dict)  # multipliers of AirframeParams fields
     wind_newtons: float = 0.0
+    observation_delay: float = 0.0  # s: the odometry the controller sees is this old
+    action_delay: float = 0.0  # s: its commands reach the motors this late
+    noise: dict | None = None  # a `noise` section: what the controller sees (the judge sees the truth)
+    start_motors: str = "rest"  # or "hover": the motors spinning at hover at release
 
     def flown_airframe(self, nominal: AirframeParams | None = None) -> dict | None:
         """The AirframeParams overrides of the flown body (None: nominal)."""
@@ -117,16 +151,63 @@ CONDITIONS = {
 }
 
 
+# A state estimate as a flight computer's estimator gives it (per element of the odometry:
+# position, velocity, acceleration, roll/pitch/yaw, body rates, angular acceleration): 2 cm, 5 cm/s,
+# 0.2 m/s^2, 1 deg, 0.03 rad/s, 0.5 rad/s^2 of white noise, and a gyro bias of 0.02 rad/s (1.1
+# deg/s) per axis and flight.
+_DEG = math.pi / 180
+ESTIMATOR_NOISE = {
+    "kind": "gaussian",
+    "std": [0.02] * 3 + [0.05] * 3 + [0.2] * 3 + [1.0 * _DEG] * 3 + [0.03] * 3 + [0.5] * 3,
+    "bias": [0.0] * 12 + [0.02] * 3 + [0.0] * 3,
+    "elements": "all",
+}
+HARDWARE = {
+    "observation latency 10 ms": Condition(observation_delay=0.010),
+    "observation latency 20 ms": Condition(observation_delay=0.020),
+    "observation latency 30 ms": Condition(observation_delay=0.030),
+    "observation latency 50 ms": Condition(observation_delay=0.050),
+    "actuation latency 10 ms": Condition(action_delay=0.010),
+    "actuation latency 20 ms": Condition(action_delay=0.020),
+    "estimator noise, gyro bias": Condition(noise=ESTIMATOR_NOISE),
+    "throw 5 m/s, any attitude": Condition("throw", start_motors="hover"),
+}
+SUITES = {"robust": CONDITIONS, "hardware": HARDWARE}  # evaluate.py suite=... -> its rows
+
+
+def condition(name: str) -> Condition:
+    """A row of suite=robust or suite=hardware by name."""
+    for rows in SUITES.values():
+        if name in rows:
+            return rows[name]
+    available = [n for rows in SUITES.values() for n in rows]
+    raise ValueError(f"unknown condition {name!r}; available: {', '.join(available)}")
+
+
 def fly_condition(controller, name: str, num_starts: int = 100, seed: int = TEST_SEED, seconds: float = 10.0, **kw):
     """Fly `controller` (anything `fly` takes) under the named condition (a row of suite=robust)."""
     from bfc.evaluation.flying import fly
 
-    if name not in CONDITIONS:
-        raise ValueError(f"unknown condition {name!r}; available: {', '.join(CONDITIONS)}")
-    c = CONDITIONS[name]
+    c = condition(name)
     starts = START_SETS[c.starts](num_starts, seed)
     wind = horizontal_wind(num_starts, c.wind_newtons, seed) if c.wind_newtons else None
-    return fly(controller, starts, seconds=seconds, seed=seed, airframe=c.flown_airframe(), external_force=wind, **kw)
+    hardware = {
+        "observation_delay": c.observation_delay,
+        "action_delay": c.action_delay,
+        "start_motors": c.start_motors,
+    }
+    if c.noise is not None:
+        hardware["noise"] = c.noise
+    return fly(
+        controller,
+        starts,
+        seconds=seconds,
+        seed=seed,
+        airframe=c.flown_airframe(),
+        external_force=wind,
+        **hardware,
+        **kw,
+    )
 
 
 def score(flights, threshold: float = 0.10, hold_seconds: float = 1.0) -> dict:
@@ -149,7 +230,7 @@ def robust_results(
     threshold = protocol.threshold if protocol is not None else 0.10
     hold = protocol.hold_seconds if protocol is not None else 1.0
     results = {}
-    for name in names or CONDITIONS:
+    for name in CONDITIONS if names is None else names:
         results[name] = {}
         for label, c in controllers.items():
             flights = fly_condition(c, name, num_starts, seed, seconds)
@@ -193,6 +274,7 @@ def robust_figure(results: dict, path) -> None:
         ax.set_xticks([i + 0.4 - width / 2 for i in range(len(names))], names, rotation=35, ha="right", fontsize=8)
         ax.set_title(title)
         ax.legend(fontsize=8, loc="lower left", framealpha=0.9)
-    ax_e.set_yscale("log")
+    if any(e is not None and e > 0 for row in results.values() for s in row.values() for e in [s["hover_error_m"]]):
+        ax_e.set_yscale("log")  # (no successful flight anywhere: nothing to draw on a log scale)
     fig.tight_layout()
     fig.savefig(path, dpi=110)

@@ -1,6 +1,8 @@
 """Odometry noise: Gaussian and Ornstein-Uhlenbeck, on chosen elements of `"odometry"` only.
 
 Ground truth under `"state"` is never touched. Noise is applied on reset as well as on step.
+`bias` adds a constant offset per episode (N(0, bias^2) per element, drawn at each reset): a
+gyro's bias, an estimator's drift. With bias 0 nothing is drawn for it (earlier runs reproduce).
 """
 
 from __future__ import annotations
@@ -37,24 +39,29 @@ def element_mask(elements) -> torch.Tensor:
     return mask
 
 
-def _std_vector(std) -> torch.Tensor:
+def _std_vector(std, name: str = "noise.std") -> torch.Tensor:
     std_t = torch.as_tensor(std, dtype=torch.float32)
     check(
         std_t.ndim == 0 or std_t.shape == (ODOMETRY_SIZE,),
-        "noise.std",
+        name,
         "a number or a list of 18 numbers (one per odometry element)",
         std,
     )
-    check(bool(torch.isfinite(std_t).all() and (std_t >= 0).all()), "noise.std", "finite and >= 0", std)
+    check(bool(torch.isfinite(std_t).all() and (std_t >= 0).all()), name, "finite and >= 0", std)
     return std_t.expand(ODOMETRY_SIZE).clone()
 
 
 class OdometryNoise(BatchedTransform):
     """What the noise models share: a per-element std (zero outside `elements`) and `corrupt`."""
 
-    def __init__(self, num_envs: int, std, elements="all"):
+    def __init__(self, num_envs: int, std, elements="all", bias=0.0):
         super().__init__(num_envs, in_keys=[keys.ODOMETRY], out_keys=[keys.ODOMETRY])
         self.register_buffer("std", _std_vector(std) * element_mask(elements))
+        bias = _std_vector(bias, "noise.bias")
+        self.biased = bool((bias > 0).any())
+        if self.biased:  # buffers only when used: an unbiased run's checkpoint keeps its keys
+            self.register_buffer("bias_std", bias)
+            self.register_buffer("offset", torch.zeros(num_envs, ODOMETRY_SIZE))
 
     def noise(self, mask: torch.Tensor | None) -> torch.Tensor:
         """(N, 18) the noise of this step (mask None) or of a reset of the envs in `mask`."""
@@ -63,7 +70,13 @@ class OdometryNoise(BatchedTransform):
     def corrupt(self, odometry: torch.Tensor, mask: torch.Tensor | None = None) -> torch.Tensor:
         """What the sensors report: `odometry` (N, 18) plus this step's noise (or a reset's, for
         the envs in `mask`); a new tensor."""
-        return odometry + self.noise(mask)
+        noisy = odometry + self.noise(mask)
+        if not self.biased:
+            return noisy
+        if mask is not None:  # a reset: these envs draw their offset for the episode
+            drawn = self.randn(self.num_envs, ODOMETRY_SIZE) * self.bias_std
+            self.offset.copy_(torch.where(mask.unsqueeze(-1), drawn, self.offset))
+        return noisy + self.offset
 
     def _step(self, tensordict: TensorDictBase, next_tensordict: TensorDictBase) -> TensorDictBase:
         return next_tensordict.set(keys.ODOMETRY, self.corrupt(next_tensordict.get(keys.ODOMETRY)))
@@ -87,10 +100,10 @@ class OUOdometryNoise(OdometryNoise):
     noise at the same std compare. Each env's process restarts from 0 at its reset.
     """
 
-    def __init__(self, num_envs: int, std, theta: float = 1.0, dt: float = 0.004, elements="all"):
+    def __init__(self, num_envs: int, std, theta: float = 1.0, dt: float = 0.004, elements="all", bias=0.0):
         check(math.isfinite(theta) and theta > 0, "noise.theta", "> 0", theta)
         check(dt > 0, "noise.dt", "> 0", dt)
-        super().__init__(num_envs, std, elements)
+        super().__init__(num_envs, std, elements, bias)
         self.theta, self.dt = float(theta), float(dt)
         self.decay = math.exp(-theta * dt)
         self.innovation = math.sqrt(1 - self.decay**2)  # keeps the stationary std at `std`

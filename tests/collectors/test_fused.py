@@ -33,6 +33,8 @@ def collect(kind: str, overrides, batches: int = 8, seed: int = 3):
         ["extras=none", "noise.kind=gaussian", "noise.std=0.02"],  # the paper's BFC, noise drawn at resets too
         ["extras=none", "noise.kind=ou", "tdts.as_terminal=true", "css.enabled=false"],
         ["+preset=paper", "+ablation=jd_tdts"],  # 250 Hz, odometry in, the speed map
+        # late odometry and commands, drawn per env at each reset, beside biased noise
+        ["latency.observation_steps=[0,3]", "latency.action_steps=[1,2]", "noise.kind=gaussian", "noise.bias=0.02"],
     ],
 )
 def test_fused_batches_equal_torchrl_collectors(overrides):

@@ -1,27 +1,12 @@
 """evaluate.py on the shipped policy, and its clean failures."""
 
 import json
-import subprocess
-import sys
-from pathlib import Path
 
 import torch
 
 from bfc.agent import read_policy
 from bfc.evaluation import fly, protocol_starts, success
-
-ROOT = Path(__file__).resolve().parents[2]
-SHIPPED = ROOT / "pretrained" / "policy.pt"
-
-
-def evaluate(*args, out):
-    return subprocess.run(
-        [sys.executable, "evaluate.py", *args, f"hydra.run.dir={out}"],
-        cwd=ROOT,
-        capture_output=True,
-        text=True,
-        timeout=300,
-    )
+from tests.evaluation.scripts import SHIPPED, evaluate
 
 
 def test_shipped_policy_is_data_and_flies_at_its_own_rate():

@@ -4,9 +4,6 @@ import importlib.util
 import json
 import math
 import os
-import subprocess
-import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -14,23 +11,11 @@ import torch
 
 from bfc.evaluation.suites import CONDITIONS, any_starts
 from bfc.evaluation.video import check_options, pick_starts, slug, start_tilt_degrees
+from tests.evaluation.scripts import SHIPPED, evaluate, run_script
 
-ROOT = Path(__file__).resolve().parents[2]
-SHIPPED = ROOT / "pretrained" / "policy.pt"
 needs_extra = pytest.mark.skipif(
     importlib.util.find_spec("av") is None, reason="the video extra (PyAV) is not installed: pip install -e '.[video]'"
 )
-
-
-def evaluate(*args, out, env=None):
-    return subprocess.run(
-        [sys.executable, "evaluate.py", *args, f"hydra.run.dir={out}"],
-        cwd=ROOT,
-        capture_output=True,
-        text=True,
-        timeout=300,
-        env=env,
-    )
 
 
 def read_mp4(path):
@@ -171,13 +156,7 @@ TINY_TRAINING = [
 
 
 def train(*args, out):
-    return subprocess.run(
-        [sys.executable, "train.py", *TINY_TRAINING, *args, f"hydra.run.dir={out}"],
-        cwd=ROOT,
-        capture_output=True,
-        text=True,
-        timeout=300,
-    )
+    return run_script("train.py", *TINY_TRAINING, *args, out=out)
 
 
 def test_training_logs_a_validation_flight_video_to_tensorboard_at_each_evaluation(tmp_path):

@@ -1,0 +1,107 @@
+"""Latency: odometry that arrives late, and motor commands that apply late.
+
+A flight computer's state estimate is tens of milliseconds old when the controller reads it
+(motion capture, radio, an onboard estimator), and a command reaches the motors a control step or
+more after it was computed. Both are whole control steps here (the env only produces odometry
+and takes commands at its control rate), and both keep their queue as buffers, so a checkpoint
+holds it and a resumed run goes on bit-identically.
+
+- `ObservationDelay`: `"odometry"` is the odometry of `steps` control steps ago (what the sensors
+  reported then, noise included when it comes after the noise transform). In the first steps
+  after a reset there is no older odometry: the controller sees the reset's, the oldest there is.
+- `ActionDelay`: the env applies the command of `steps` control steps ago (rad/s); in the first
+  steps after a reset the motors get `initial` (the hover speed: the command a flight computer
+  holds before it releases the drone). The policy's own record of its previous command
+  (`PolicyObservation`) is what it commanded, not what the motors got.
+
+`steps` is a number, or a (low, high) range from which each env draws its delay at every reset
+(uniform over the integers, both ends included): domain randomisation for training.
+"""
+
+from __future__ import annotations
+
+import torch
+from tensordict import TensorDictBase
+
+from bfc import keys
+from bfc.transforms._base import BatchedTransform, check, reset_mask
+
+
+def _delay_range(steps, name: str) -> tuple[int, int]:
+    if isinstance(steps, (list, tuple)) or (hasattr(steps, "__len__") and not isinstance(steps, str)):
+        low, high = (tuple(steps) + (None, None))[:2] if len(steps) == 2 else (None, None)
+    else:
+        low = high = steps
+    check(
+        all(isinstance(v, int) and not isinstance(v, bool) for v in (low, high)) and 0 <= low <= high,
+        name,
+        "a whole number of control steps >= 0, or a [low, high] range of them",
+        steps,
+    )
+    return low, high
+
+
+class _Delay(BatchedTransform):
+    """A per-env queue of the last `high + 1` values and each env's delay (buffers)."""
+
+    def __init__(self, num_envs: int, steps, width: int, name: str, **keys_kw):
+        super().__init__(num_envs, **keys_kw)
+        self.low, self.high = _delay_range(steps, name)
+        self.register_buffer("queue", torch.zeros(num_envs, self.high + 1, width))  # newest first
+        self.register_buffer("delay", torch.full((num_envs,), self.low, dtype=torch.long))
+        self._rows = torch.arange(num_envs)
+
+    def restart(self, mask: torch.Tensor, value: torch.Tensor) -> None:
+        """The envs in `mask` forget their past: every queued value is `value` (n, width)."""
+        self.queue[mask] = value[mask].unsqueeze(1).to(self.queue.dtype)
+        if self.high > self.low:
+            drawn = self.low + (self.rand(self.num_envs) * (self.high - self.low + 1)).long().clamp(max=self.high)
+            self.delay[mask] = drawn[mask]
+
+    def push(self, value: torch.Tensor) -> torch.Tensor:
+        """Queue this step's `value` (n, width) and return each env's value of `delay` steps ago."""
+        self.queue.copy_(torch.cat([value.unsqueeze(1).to(self.queue.dtype), self.queue[:, :-1]], 1))
+        return self.queue[self._rows, self.delay].to(value.dtype)
+
+
+class ObservationDelay(_Delay):
+    """`"odometry"` as it was `steps` control steps ago (the reset's in the first steps)."""
+
+    def __init__(self, num_envs: int, steps):
+        super().__init__(num_envs, steps, 18, "latency.observation_steps", in_keys=[keys.ODOMETRY])
+
+    def _step(self, tensordict: TensorDictBase, next_tensordict: TensorDictBase) -> TensorDictBase:
+        return next_tensordict.set(keys.ODOMETRY, self.push(next_tensordict.get(keys.ODOMETRY)))
+
+    def restart_and_read(self, mask: torch.Tensor, odometry: torch.Tensor) -> torch.Tensor:
+        """A reset of the envs in `mask` (their queues hold `odometry`), and what every env sees now."""
+        self.restart(mask, odometry)
+        return self.queue[self._rows, self.delay].to(odometry.dtype)
+
+    def _reset(self, tensordict: TensorDictBase, tensordict_reset: TensorDictBase) -> TensorDictBase:
+        odometry = self.restart_and_read(reset_mask(tensordict, self.num_envs), tensordict_reset.get(keys.ODOMETRY))
+        return tensordict_reset.set(keys.ODOMETRY, odometry)
+
+
+class ActionDelay(_Delay):
+    """The env applies the command (rad/s) of `steps` control steps ago; `initial` before that."""
+
+    def __init__(self, num_envs: int, steps, initial: float):
+        super().__init__(num_envs, steps, 4, "latency.action_steps")
+        self.in_keys_inv, self.out_keys_inv = [keys.ACTION], [keys.ACTION]
+        check(initial >= 0, "initial", ">= 0 (rad/s)", initial)
+        self.initial = float(initial)
+
+    def _inv_call(self, tensordict: TensorDictBase) -> TensorDictBase:
+        return tensordict.set(keys.ACTION, self.push(tensordict.get(keys.ACTION)))
+
+    def _step(self, tensordict: TensorDictBase, next_tensordict: TensorDictBase) -> TensorDictBase:
+        # The transforms after this one see the inverse-transformed input: give them back the
+        # command as commanded (the newest in the queue), so the policy's record of its previous
+        # command is its own, as on a flight computer that feeds its output back.
+        tensordict.set(keys.ACTION, self.queue[:, 0].clone())
+        return next_tensordict
+
+    def _reset(self, tensordict: TensorDictBase, tensordict_reset: TensorDictBase) -> TensorDictBase:
+        self.restart(reset_mask(tensordict, self.num_envs), torch.full((self.num_envs, 4), self.initial))
+        return tensordict_reset
