@@ -225,7 +225,7 @@ class FusedCollector:
         if self.observation_delay is not None:
             odometry = self.observation_delay.restart_and_read(done, odometry)
         if self.action_delay is not None:
-            self.action_delay.restart(done, torch.full_like(self.action_delay.queue[:, 0], self.action_delay.initial))
+            self.action_delay.restart_at_hover(done)
         obs = self.observation.restart(done, odometry, flat[:, FLAT_GOAL])
         m = done.unsqueeze(-1)
         self.truth = torch.where(m, flat, self.truth)

@@ -28,17 +28,15 @@ from bfc.transforms._base import BatchedTransform, check, reset_mask
 
 
 def _delay_range(steps, name: str) -> tuple[int, int]:
-    if isinstance(steps, (list, tuple)) or (hasattr(steps, "__len__") and not isinstance(steps, str)):
-        low, high = (tuple(steps) + (None, None))[:2] if len(steps) == 2 else (None, None)
-    else:
-        low = high = steps
+    pair = tuple(steps) if isinstance(steps, (list, tuple)) else (steps, steps)
+    whole = len(pair) == 2 and all(isinstance(v, int) and not isinstance(v, bool) for v in pair)
     check(
-        all(isinstance(v, int) and not isinstance(v, bool) for v in (low, high)) and 0 <= low <= high,
+        whole and 0 <= pair[0] <= pair[1],
         name,
         "a whole number of control steps >= 0, or a [low, high] range of them",
         steps,
     )
-    return low, high
+    return pair
 
 
 class _Delay(BatchedTransform):
@@ -102,6 +100,10 @@ class ActionDelay(_Delay):
         tensordict.set(keys.ACTION, self.queue[:, 0].clone())
         return next_tensordict
 
+    def restart_at_hover(self, mask: torch.Tensor) -> None:
+        """The envs in `mask` start again: their motors get `initial` until their first command arrives."""
+        self.restart(mask, torch.full((self.num_envs, 4), self.initial))
+
     def _reset(self, tensordict: TensorDictBase, tensordict_reset: TensorDictBase) -> TensorDictBase:
-        self.restart(reset_mask(tensordict, self.num_envs), torch.full((self.num_envs, 4), self.initial))
+        self.restart_at_hover(reset_mask(tensordict, self.num_envs))
         return tensordict_reset
