@@ -46,7 +46,7 @@ def test_unknown_controller_fails_cleanly(tmp_path):
 
 
 def test_paper_suite_writes_a_report_with_figures(tmp_path):
-    r = evaluate("suite=paper", f"policy={SHIPPED}", "eval.num_starts=6", out=tmp_path)
+    r = evaluate("suite=paper", f"policy={SHIPPED}", "eval.num_starts=6", "eval.seconds=4", out=tmp_path)
     assert r.returncode == 0, r.stderr[-2000:]
     report = (tmp_path / "report.md").read_text()
     for section in ("## Protocol", "## Accuracy", "## Odometry noise", "## Waypoints", "## Controllers"):
