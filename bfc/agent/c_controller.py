@@ -17,12 +17,9 @@ import weakref
 from pathlib import Path
 
 import numpy as np
-import torch
-from tensordict import TensorDictBase
-from tensordict.nn import TensorDictModuleBase
 
-from bfc import keys
 from bfc.agent.c_export import PREFIX
+from bfc.agent.fed_back import FedBackController
 
 CFLAGS = ("-std=c99", "-O2", "-Wall", "-Wextra", "-Werror")
 _HEADER_COPY = "bfc_exported_policy.h"
@@ -90,21 +87,18 @@ def _pointer(array: np.ndarray | None):
     return None if array is None else array.ctypes.data_as(ctypes.c_void_p)
 
 
-class CController(TensorDictModuleBase):
+class CController(FedBackController):
     """Flies an exported C header: reads `"odometry"` and `"goal"`, writes `"action"` (motor speeds,
     rad/s), and feeds its own last command back as `previous_motor_speeds` (and, for a policy
     with a position integral, its own integral), as `OnnxController` does.
 
     `fly(CController("policy.h"), starts, control_hz=controller.control_hz)` flies it as trained.
-    The state restarts from hover (and a zero integral) at the first call, when the batch size
-    changes, after `reset()` / `begin_flight()`, and per env where the input carries `"is_init"`
-    or a `"step_count"` of 0. cc: the C compiler (default $CC, else `cc`).
+    The state it feeds back restarts as `FedBackController` says. cc: the C compiler (default $CC,
+    else `cc`).
     """
 
     def __init__(self, header_path, cc: str | None = None):
         super().__init__()
-        self.in_keys = [keys.ODOMETRY, keys.GOAL]
-        self.out_keys = [keys.ACTION]
         self.path = Path(header_path)
         build_dir = tempfile.mkdtemp(prefix="bfc-c-policy-")
         self._cleanup = weakref.finalize(self, shutil.rmtree, build_dir, True)
@@ -128,23 +122,6 @@ class CController(TensorDictModuleBase):
             "macs": int(lib.bfc_lib_setting(5)),
             "action_map": lib.bfc_lib_action_map().decode(),
         }
-        self.previous_motor_speeds: np.ndarray | None = None
-        self.integral: np.ndarray | None = None
-
-    def reset(self) -> None:
-        """Forget the previous command: the next call starts every env from hover."""
-        self.previous_motor_speeds = None
-        self.integral = None
-
-    def begin_flight(self) -> None:
-        self.reset()
-
-    def _reset_mask(self, td: TensorDictBase) -> np.ndarray | None:  # as OnnxController's
-        if "is_init" in td.keys():
-            return td.get("is_init").reshape(-1).cpu().numpy().astype(bool)
-        if "step_count" in td.keys():
-            return (td.get("step_count").reshape(-1) == 0).cpu().numpy()
-        return None
 
     def step(self, odometry: np.ndarray, goal: np.ndarray, previous: np.ndarray, integral: np.ndarray | None = None):
         """One control step for n drones, as the ONNX graph: (motor speeds (n, 4), the next
@@ -172,25 +149,3 @@ class CController(TensorDictModuleBase):
             _pointer(integral_out),
         )
         return speeds, integral_out
-
-    def forward(self, td: TensorDictBase) -> TensorDictBase:
-        odometry = td.get(keys.ODOMETRY)
-        goal = td.get(keys.GOAL)
-        n = odometry.shape[0]
-        goal = goal.expand(n, 3) if goal.ndim == 1 else goal
-        previous, integral = self.previous_motor_speeds, self.integral
-        if previous is None or previous.shape[0] != n:
-            previous = np.full((n, 4), self.hover_speed, dtype=np.float32)
-            integral = np.zeros((n, 3), dtype=np.float32)
-        mask = self._reset_mask(td)
-        if mask is not None and mask.any():
-            previous, integral = previous.copy(), integral.copy()
-            previous[mask] = self.hover_speed
-            integral[mask] = 0.0
-        speeds, next_integral = self.step(
-            odometry.detach().cpu().numpy(), goal.detach().cpu().numpy(), previous, integral
-        )
-        self.previous_motor_speeds = speeds
-        self.integral = next_integral if next_integral is not None else integral
-        td.set(keys.ACTION, torch.from_numpy(speeds.copy()).to(odometry.device))
-        return td

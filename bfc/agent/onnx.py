@@ -27,14 +27,11 @@ import io
 import warnings
 from pathlib import Path
 
-import numpy as np
 import torch
-from tensordict import TensorDictBase
-from tensordict.nn import TensorDictModuleBase
 from torch import nn
 
-from bfc import keys
 from bfc.agent.actor import GaussianActor
+from bfc.agent.fed_back import FedBackController
 from bfc.agent.policy_file import POLICY_FORMAT, load_policy
 from bfc.agent.spec import PolicySpec
 from bfc.transforms import MotorSpeedAction, PolicyObservation
@@ -200,19 +197,10 @@ def _parse_metadata(meta: dict, onnx_path) -> dict:
     return out
 
 
-class OnnxController(TensorDictModuleBase):
-    """Flies an exported policy with onnxruntime: reads `"odometry"` and `"goal"`, writes `"action"`
-    (motor speeds, rad/s), and feeds its own last command back as `previous_motor_speeds` (and,
-    for a policy with a position integral, its own `next_position_error_integral`).
+class OnnxController(FedBackController):
+    """Flies an exported policy with onnxruntime (the state it feeds back: `FedBackController`).
 
     `fly(OnnxController(path), starts, control_hz=controller.control_hz)` flies it as trained.
-    The previous command starts at the hover speed (the env's zero previous action) for every env:
-    (and the integral at zero)
-    - at the first call, and at any call whose batch size differs from the stored state;
-    - after `reset()` (also called by `begin_flight()`, which flight runners call before a flight);
-    - per env, where the input carries TorchRL's `"is_init"` (InitTracker) or `"step_count" == 0`
-      (StepCounter), i.e. for envs an auto-resetting runner has just reset.
-    A caller that flies two flights of the same size in a row through its own loop calls `reset()`.
     threads: onnxruntime intra-op threads (1: the model is tiny, and MuJoCo owns the cores).
     """
 
@@ -222,8 +210,6 @@ class OnnxController(TensorDictModuleBase):
             import onnxruntime as ort
         except ImportError as err:
             raise ImportError(f"{_INSTALL_HINT} ({err})") from None
-        self.in_keys = [keys.ODOMETRY, keys.GOAL]
-        self.out_keys = [keys.ACTION]
         options = ort.SessionOptions()
         options.intra_op_num_threads = int(threads)
         options.inter_op_num_threads = 1
@@ -235,48 +221,12 @@ class OnnxController(TensorDictModuleBase):
         self.control_hz = self.metadata["control_hz"]
         self.hover_speed = self.metadata["hover_speed"]
         self.max_rotor_speed = self.metadata["max_rotor_speed"]
-        self.previous_motor_speeds: np.ndarray | None = None
-        self.integral: np.ndarray | None = None
 
-    def reset(self) -> None:
-        """Forget the previous command: the next call starts every env from hover."""
-        self.previous_motor_speeds = None
-        self.integral = None
-
-    def begin_flight(self) -> None:
-        self.reset()
-
-    def _reset_mask(self, td: TensorDictBase) -> np.ndarray | None:
-        if "is_init" in td.keys():
-            return td.get("is_init").reshape(-1).cpu().numpy().astype(bool)
-        if "step_count" in td.keys():
-            return (td.get("step_count").reshape(-1) == 0).cpu().numpy()
-        return None
-
-    def forward(self, td: TensorDictBase) -> TensorDictBase:
-        odometry = td.get(keys.ODOMETRY)
-        goal = td.get(keys.GOAL)
-        n = odometry.shape[0]
-        goal = goal.expand(n, 3) if goal.ndim == 1 else goal
-        previous, integral = self.previous_motor_speeds, self.integral
-        if previous is None or previous.shape[0] != n:
-            previous = np.full((n, 4), self.hover_speed, dtype=np.float32)
-            integral = np.zeros((n, 3), dtype=np.float32)
-        mask = self._reset_mask(td)
-        if mask is not None and mask.any():
-            previous, integral = previous.copy(), integral.copy()
-            previous[mask] = self.hover_speed
-            integral[mask] = 0.0
-        feeds = {
-            "odometry": odometry.detach().cpu().numpy().astype(np.float32, copy=False),
-            "goal": goal.detach().cpu().numpy().astype(np.float32, copy=False),
-            "previous_motor_speeds": previous,
-        }
+    def step(self, odometry, goal, previous, integral):
+        feeds = {"odometry": odometry, "goal": goal, "previous_motor_speeds": previous}
         if self.metadata["position_integral"]:
             feeds[INTEGRAL_INPUT] = integral
-            speeds, integral = self.session.run([OUTPUT, INTEGRAL_OUTPUT], feeds)
-        else:
-            (speeds,) = self.session.run([OUTPUT], feeds)
-        self.previous_motor_speeds, self.integral = speeds, integral
-        td.set(keys.ACTION, torch.from_numpy(speeds.copy()).to(odometry.device))
-        return td
+            speeds, next_integral = self.session.run([OUTPUT, INTEGRAL_OUTPUT], feeds)
+            return speeds, next_integral
+        (speeds,) = self.session.run([OUTPUT], feeds)
+        return speeds, None
