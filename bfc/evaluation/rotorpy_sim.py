@@ -44,7 +44,7 @@ from bfc.envs.rotations import euler_to_quat, quat_to_euler
 from bfc.evaluation.flights import one_torch_thread
 from bfc.evaluation.flying import PROTOCOL_HZ, is_module, is_onnx_path, onnx_controller
 from bfc.evaluation.protocol import TEST_SEED
-from bfc.evaluation.suites import CONDITIONS, START_SETS, horizontal_wind, score
+from bfc.evaluation.suites import CONDITIONS, START_SETS, horizontal_wind, robust_results
 
 AIRFRAMES = ("bfc", "rotorpy")
 INSTALL_HINT = 'sim=rotorpy needs RotorPy: pip install -e ".[rotorpy]"'
@@ -423,19 +423,15 @@ def robust_results_rotorpy(
 ) -> dict:
     """`suites.robust_results` in RotorPy: {row: {label: score}}, each score with the row's wall
     clock (`wall_seconds`) and, for the wind row, the RotorPy wind speed flown (`wind_m_s`)."""
-    seconds = protocol.seconds if protocol is not None else 10.0
-    threshold = protocol.threshold if protocol is not None else 0.10
-    hold = protocol.hold_seconds if protocol is not None else 1.0
-    results = {}
-    for name in CONDITIONS if names is None else names:
-        results[name] = {}
-        for label, c in controllers.items():
-            t0 = time.perf_counter()
-            flights = fly_condition_rotorpy(c, name, num_starts, seed, seconds, airframe)
-            speed = flights.get("wind")[:, 0].norm(dim=-1).max().item()
-            results[name][label] = {
-                **score(flights, threshold, hold),
-                "wall_seconds": round(time.perf_counter() - t0, 1),
-                **({"wind_m_s": round(speed, 2)} if speed else {}),
-            }
-    return results
+    started = [time.perf_counter()]
+
+    def fly_row(controller, name, n, row_seed, seconds):
+        started[0] = time.perf_counter()
+        return fly_condition_rotorpy(controller, name, n, row_seed, seconds, airframe)
+
+    def timed(name, label, flights) -> dict:
+        speed = flights.get("wind")[:, 0].norm(dim=-1).max().item()
+        wind = {"wind_m_s": round(speed, 2)} if speed else {}
+        return {"wall_seconds": round(time.perf_counter() - started[0], 1), **wind}
+
+    return robust_results(controllers, names, num_starts, seed, protocol, on_flights=timed, fly_row=fly_row)

@@ -220,12 +220,21 @@ def score(flights, threshold: float = 0.10, hold_seconds: float = 1.0) -> dict:
 
 
 def robust_results(
-    controllers: dict, names=None, num_starts: int = 100, seed: int = TEST_SEED, protocol=None, on_flights=None
+    controllers: dict,
+    names=None,
+    num_starts: int = 100,
+    seed: int = TEST_SEED,
+    protocol=None,
+    on_flights=None,
+    fly_row=None,
 ) -> dict:
     """{condition: {label: score}} for every controller (label -> anything `fly` takes) and condition.
 
     on_flights(condition, label, flights), if given, sees each flight set before it is dropped
-    (evaluate.py's video=true keeps the poses of a few flights of each row)."""
+    (evaluate.py's video=true keeps the poses of a few flights of each row); a dict it returns is
+    added to that score. fly_row(controller, condition, num_starts, seed, seconds) flies a row
+    (default `fly_condition`: MuJoCo; RotorPy passes its own)."""
+    fly_row = fly_row or fly_condition
     seconds = protocol.seconds if protocol is not None else 10.0
     threshold = protocol.threshold if protocol is not None else 0.10
     hold = protocol.hold_seconds if protocol is not None else 1.0
@@ -233,10 +242,9 @@ def robust_results(
     for name in CONDITIONS if names is None else names:
         results[name] = {}
         for label, c in controllers.items():
-            flights = fly_condition(c, name, num_starts, seed, seconds)
-            if on_flights is not None:
-                on_flights(name, label, flights)
-            results[name][label] = score(flights, threshold, hold)
+            flights = fly_row(c, name, num_starts, seed, seconds)
+            extra = on_flights(name, label, flights) if on_flights is not None else None
+            results[name][label] = {**score(flights, threshold, hold), **(extra or {})}
     return results
 
 
