@@ -70,7 +70,10 @@ def main(cfg) -> float:
         return float("nan")
     value = objective(summary, cfg.sweep_objective)
     if multirun:
-        write_status(run_dir, "finished", objective=value)
+        if summary.get("paused"):
+            write_status(run_dir, "paused", frames=summary["frames"])
+        else:
+            write_status(run_dir, "finished", objective=value)
     print(f"run directory: {run_dir}")
     print(
         f"frames {summary['frames']}, wall-clock {summary['wall_seconds']} s, "

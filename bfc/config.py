@@ -147,6 +147,9 @@ class ModelConfig:
     observation: str = "heading"  # heading (22 numbers, bfc's) | odometry (18, the paper's; +preset=paper)
     squash: bool = False  # tanh on the actor's mean (algo=ddpg sets it: its actor climbs the critic's gradient)
     action_map: str = "thrust"  # thrust | speed: how the policy's [-1, 1] maps to motor speed (transforms/action.py)
+    # running mean/std of the observation in front of actor and critic, saved in the policy file
+    # (OpenAI Baselines' VecNormalize; +preset=paper). bfc's own observation is scaled by hand
+    normalize_observation: bool = False
 
 
 @dataclass
@@ -178,6 +181,9 @@ class LossConfig:
     entropy_coeff: float = 0.0
     critic_coeff: float = 0.5
     critic_loss: str = "l2"  # l2 | l1 | smooth_l1: TorchRL's loss_critic_type
+    # ClipPPOLoss's clip_value: the new value kept within this of the collected one (Baselines'
+    # ppo2 clips it with the clip range; +preset=paper). null: off
+    clip_value: float | None = None
     epochs: int = 2  # 2 passes of 16 minibatches (extras=none: 4)
     num_minibatches: int = 16  # per epoch; the minibatch is frames_per_batch / num_minibatches frames (512)
     minibatch_size: int | None = None  # set: a fixed size in frames instead (overrides num_minibatches)
@@ -225,6 +231,11 @@ class AlgoConfig:
 class OptimConfig:
     lr: float = 1e-3  # PPO, and TRPO's critic (DDPG: algo.ddpg.actor_lr / critic_lr)
     max_grad_norm: float = 1.0
+    adam_eps: float = 1e-8  # Adam's epsilon (torch's default; Baselines' ppo2: 1e-5)
+    # every learner: rewards divided by the running std of the discounted return, clipped to +-10
+    # (Baselines' VecNormalize; +preset=paper; bfc.agent.normalization.RewardScale). Logged
+    # rewards stay unscaled
+    normalize_reward: bool = False
     anneal_lr: bool = (
         True  # linear decay to 0 at the last frame: the final policy is the settled one (extras=none: off)
     )
@@ -271,6 +282,11 @@ class EvalConfig(ProtocolConfig):
 class CheckpointConfig:
     interval_frames: int = 2_000_000
     keep_best: bool = True  # policy.pt = the best evaluation so far (false: the latest)
+    # End this process at this frame count with a checkpoint, policy files and a summary marked
+    # paused (a sweep reports the job "paused"); the run itself is unchanged (its schedules still
+    # end at collector.total_frames) and the same command resumes it, to a later pause_at_frames
+    # or to the end. For a long sweep run in stages. null: off
+    pause_at_frames: int | None = None
 
 
 @dataclass
@@ -442,6 +458,7 @@ def check_overrides(overrides, config_name: str = "config") -> None:
         raise ValueError(f"cannot parse the overrides: {str(err).splitlines()[0]}") from None
     groups = config_groups() if config_name == "config" else {}
     schema = SCHEMAS[config_name]()
+    _check_preset_algo(parsed)
     for o in parsed:
         key = o.key_or_group
         if key == "hydra" or key.startswith(("hydra.", "hydra/")):
@@ -458,6 +475,21 @@ def check_overrides(overrides, config_name: str = "config") -> None:
                 where = ".".join(parts[:i]) or "the top level"
                 raise ValueError(_unknown_message(key, where, _schema_keys(node), config_name))
             node = getattr(node, part)
+
+
+# Each paper preset trains one algorithm (conf/preset/paper*.yaml): the paper's widths and
+# Baselines' defaults differ per algorithm, so `algo=` beside one names the preset to use instead.
+PAPER_PRESETS = {"paper": "ppo", "paper_trpo": "trpo", "paper_ddpg": "ddpg"}
+
+
+def _check_preset_algo(parsed) -> None:
+    chosen = {o.key_or_group: o.get_value_element_as_str() for o in parsed if not o.is_sweep_override()}
+    preset, algo = chosen.get("preset"), chosen.get("algo")
+    if preset in PAPER_PRESETS and algo is not None and algo != PAPER_PRESETS[preset]:
+        name = {v: k for k, v in PAPER_PRESETS.items()}.get(algo)
+        raise ValueError(
+            f"+preset={preset} trains {PAPER_PRESETS[preset]}; for algo={algo} use +preset={name} instead (no algo=)"
+        )
 
 
 def minibatch_size(cfg) -> int:
@@ -510,12 +542,18 @@ def validate(cfg) -> None:
             f"null or in [1, collector.frames_per_batch={c.frames_per_batch}]",
             lo.minibatch_size,
         )
+    pause = cfg.checkpoint.pause_at_frames
+    if pause is not None:
+        check(pause > 0, "checkpoint.pause_at_frames", "null (off) or > 0", pause)
     check(cfg.curriculum.frames >= 0, "curriculum.frames", ">= 0 (0: off)", cfg.curriculum.frames)
     check(0 <= cfg.curriculum.start <= 1, "curriculum.start", "in [0, 1]", cfg.curriculum.start)
     if cfg.jd.decay_frames is not None:
         d = cfg.jd.decay_frames
         check(d >= 0, "jd.decay_frames", "null (= collector.total_frames) or >= 0", d)
     check(cfg.optim.lr > 0, "optim.lr", "> 0", cfg.optim.lr)
+    check(cfg.optim.adam_eps > 0, "optim.adam_eps", "> 0", cfg.optim.adam_eps)
+    if lo.clip_value is not None:
+        check(lo.clip_value > 0, "loss.clip_value", "null (off) or > 0", lo.clip_value)
     a = cfg.algo
     check(a.name in ALGORITHMS, "algo.name", f"one of {', '.join(ALGORITHMS)} (conf/algo/)", a.name)
     t = a.trpo

@@ -31,8 +31,8 @@ def write_status(run_dir, status: str, **info) -> None:
 
 def read_runs(sweep_dir) -> list[dict]:
     """Every job below `sweep_dir` (a directory with a status.json or Hydra's .hydra), with its outcome: finished
-    (summary.json), failed or interrupted (its status.json says so), or unfinished (started and
-    stopped without a word: killed)."""
+    (summary.json), failed, interrupted or paused (its status.json says so: checkpoint.pause_at_frames),
+    or unfinished (started and stopped without a word: killed)."""
     rows = []
     marks = [*Path(sweep_dir).rglob(STATUS), *Path(sweep_dir).rglob(".hydra")]  # Hydra's own record of a job
     for run_dir in sorted({m.parent for m in marks} - {Path(sweep_dir)}):

@@ -13,9 +13,11 @@ PRETRAINED = ROOT / "pretrained" / "policy.pt"
 TOLERANCE = 1e-5
 
 
-def tiny_policy(path, action_map="speed"):
-    """A random 2x16 ELU policy with accelerations in its observation, on a heavier airframe."""
+def tiny_policy(path, action_map="speed", normalize=False):
+    """A random 2x16 ELU policy with accelerations in its observation, on a heavier airframe
+    (normalize=True: the observation through running statistics, as the paper preset trains)."""
     spec = PolicySpec(
+        normalize_observation=normalize,
         include_acceleration=True,
         action_map=action_map,
         hidden=(16, 16),
@@ -28,8 +30,18 @@ def tiny_policy(path, action_map="speed"):
     with torch.no_grad():  # undo the near-zero last layer, so the outputs spread over the action range
         for p in net.mlp.parameters():
             p.normal_(0.0, 0.2)
+        set_statistics(net)
     save_policy(path, spec, net)
     return path
+
+
+def set_statistics(net, seed=5):
+    """Give an ObservationNorm (if the net has one) statistics far from its start, some
+    observations clipped at its bound."""
+    if net.obs_norm is not None:
+        g = torch.Generator().manual_seed(seed)
+        size = net.obs_norm.mean.shape[0]
+        net.obs_norm.update(torch.randn(500, size, generator=g) * (0.05 + torch.rand(size, generator=g)) + 0.3)
 
 
 def random_inputs(n, hover, max_speed, seed=0, spread=1.0):

@@ -21,13 +21,15 @@ from tests.export_helpers import PRETRAINED, ROOT, TOLERANCE, random_inputs, tin
 def models(tmp_path_factory):
     d = tmp_path_factory.mktemp("onnx")
     tiny = tiny_policy(d / "tiny.pt")
+    normalized = tiny_policy(d / "normalized.pt", normalize=True)
     return {
         "pretrained": (PRETRAINED, export_onnx(PRETRAINED, d / "pretrained.onnx")),
         "tiny": (tiny, export_onnx(tiny, d / "tiny.onnx")),
+        "normalized": (normalized, export_onnx(normalized, d / "normalized.onnx")),
     }
 
 
-@pytest.mark.parametrize("name", ["pretrained", "tiny"])
+@pytest.mark.parametrize("name", ["pretrained", "tiny", "normalized"])
 def test_onnx_matches_the_torch_policy(models, name):
     policy_path, onnx_path = models[name]
     spec, _ = load_policy(policy_path)

@@ -13,7 +13,15 @@ from torch import nn
 
 from bfc.agent import PolicySpec, load_policy, save_policy
 from bfc.export import CController, export_c, main
-from tests.export_helpers import PRETRAINED, ROOT, TOLERANCE, random_inputs, tiny_policy, torch_reference
+from tests.export_helpers import (
+    PRETRAINED,
+    ROOT,
+    TOLERANCE,
+    random_inputs,
+    set_statistics,
+    tiny_policy,
+    torch_reference,
+)
 
 CC = shutil.which("cc")
 needs_cc = pytest.mark.skipif(CC is None, reason="no system C compiler `cc` on the PATH (apt-get install gcc)")
@@ -166,8 +174,9 @@ def test_header_is_self_contained_and_names_its_settings(headers):
         PolicySpec(observation="odometry", position_integral=True, hidden=(8,), activation="tanh", squash=True),
         PolicySpec(observation="odometry", hidden=(8, 8, 8), activation="relu", action_map="thrust"),
         PolicySpec(include_acceleration=True, position_integral=True, hidden=(8, 8, 8), activation="elu", squash=True),
+        PolicySpec(observation="odometry", hidden=(8, 8), activation="tanh", normalize_observation=True),
     ],
-    ids=["odometry-integral-tanh-squash", "odometry-3-layers", "heading-all-elu-squash"],
+    ids=["odometry-integral-tanh-squash", "odometry-3-layers", "heading-all-elu-squash", "paper-normalized"],
 )
 def test_every_observation_kind_and_activation(tmp_path, spec):
     """The paper's observation, the squash, three hidden layers: the other branches of the maps."""
@@ -176,6 +185,7 @@ def test_every_observation_kind_and_activation(tmp_path, spec):
     with torch.no_grad():
         for p in net.mlp.parameters():
             p.normal_(0.0, 0.3)
+        set_statistics(net)
     save_policy(tmp_path / "p.pt", spec, net)
     header = export_c(tmp_path / "p.pt", tmp_path / "policy.h")
     odometry, goal, previous, integral = parity_rows(spec)

@@ -20,6 +20,7 @@ from torch import nn
 from torchrl.modules import MLP, IndependentNormal, ProbabilisticActor, ValueOperator
 
 from bfc import keys
+from bfc.agent.normalization import Normalized, ObservationNorm
 
 ACTIVATIONS = {"tanh": nn.Tanh, "relu": nn.ReLU, "elu": nn.ELU}
 _LOG_SQRT_2PI = math.log(math.sqrt(2 * math.pi))
@@ -31,12 +32,23 @@ class GaussianActor(nn.Module):
     The last layer starts near zero, so the untrained policy commands about hover (action 0);
     the std starts at `init_std` (small: big motor noise makes take-off a lottery).
     squash=True puts the mean through tanh (inside [-1, 1]): for DDPG, whose actor climbs the
-    critic's gradient and would otherwise leave the action range.
+    critic's gradient and would otherwise leave the action range. normalize=True puts the
+    observation through running statistics first (`obs_norm`, bfc.agent.normalization; the paper
+    preset's Baselines-style normalisation), which the state_dict, and so a policy file, carries.
     """
 
-    def __init__(self, obs_size: int, hidden, activation: str = "relu", init_std: float = 0.2, squash: bool = False):
+    def __init__(
+        self,
+        obs_size: int,
+        hidden,
+        activation: str = "relu",
+        init_std: float = 0.2,
+        squash: bool = False,
+        normalize: bool = False,
+    ):
         super().__init__()
         self.squash = bool(squash)
+        self.obs_norm = ObservationNorm(obs_size) if normalize else None
         self.mlp = MLP(
             in_features=obs_size, out_features=4, num_cells=list(hidden), activation_class=ACTIVATIONS[activation]
         )
@@ -50,15 +62,18 @@ class GaussianActor(nn.Module):
     def obs_size(self) -> int:
         return self.mlp[0].in_features
 
+    def _mlp(self, obs: torch.Tensor) -> torch.Tensor:
+        return self.mlp(obs if self.obs_norm is None else self.obs_norm(obs))
+
     def forward(self, obs: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        loc = self.mlp(obs)
+        loc = self._mlp(obs)
         if self.squash:
             loc = loc.tanh()
         return loc, self.log_std.exp().expand_as(loc)
 
     def mean(self, obs: torch.Tensor) -> torch.Tensor:
         """The deterministic action: the Gaussian's mean (`forward`'s loc, without the scale)."""
-        loc = self.mlp(obs)
+        loc = self._mlp(obs)
         return loc.tanh() if self.squash else loc
 
     def sample(self, obs: torch.Tensor):
@@ -141,7 +156,10 @@ class SamplingActor(TensorDictModuleBase):
         return tensordict
 
 
-def make_critic(obs_size: int, hidden, activation: str = "relu") -> ValueOperator:
-    """V(s): an MLP on the observation (training only; never part of a policy file)."""
+def make_critic(obs_size: int, hidden, activation: str = "relu", obs_norm: nn.Module | None = None) -> ValueOperator:
+    """V(s): an MLP on the observation (training only; never part of a policy file); with
+    `obs_norm` (the actor's ObservationNorm, shared) on the normalised observation."""
     net = MLP(in_features=obs_size, out_features=1, num_cells=list(hidden), activation_class=ACTIVATIONS[activation])
+    if obs_norm is not None:
+        net = Normalized(net, obs_norm)
     return ValueOperator(net, in_keys=[keys.OBSERVATION])

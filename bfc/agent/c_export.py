@@ -298,6 +298,20 @@ def generate_c(spec: PolicySpec, net, source: str = "policy.pt", name: str = "po
 
     mlp = []
     src = "obs"
+    norm = net.obs_norm
+    if norm is not None:  # ObservationNorm: clip((obs - mean) / sqrt(var + eps), -clip, clip)
+        std = (norm.var + norm.eps).sqrt()
+        weights.append(f"/* the observation's running statistics (ObservationNorm, clip {c_float(norm.clip)}) */\n")
+        weights.append(_array("obs_mean", norm.mean.detach().numpy()))
+        weights.append(_array("obs_std", std.detach().numpy()))
+        weights.append("\n")
+        mlp.append("    /* the observation's running statistics */")
+        bound = c_float(norm.clip)
+        mlp.append(
+            f"    for (i = 0; i < {P}_OBSERVATION_SIZE; ++i) "
+            f"x[i] = {p}_clamp((obs[i] - {p}_obs_mean[i]) / {p}_obs_std[i], -{bound}, {bound});"
+        )
+        src = "x"
     for i, (w, _, act, alpha) in enumerate(layers):
         dst = "action" if i == len(layers) - 1 else ("h0" if i % 2 == 0 else "h1")
         mlp.append(f"    /* layer {i}: Linear {w.shape[1]} -> {w.shape[0]} */")
@@ -310,6 +324,8 @@ def generate_c(spec: PolicySpec, net, source: str = "policy.pt", name: str = "po
         mlp.append("    /* squash: tanh on the mean */")
         mlp.append("    for (i = 0; i < 4; ++i) action[i] = tanhf(action[i]);")
     hidden_decl = "h0[{0}], h1[{0}]".format(f"{P}_HIDDEN_MAX") if len(widths) > 1 else f"h0[{P}_HIDDEN_MAX]"
+    if norm is not None:
+        hidden_decl += f", x[{P}_OBSERVATION_SIZE]"
 
     if integral:
         integral_code = (

@@ -28,6 +28,8 @@ class PolicySpec:
     activation: str = "relu"
     init_std: float = 0.2
     squash: bool = False  # tanh on the mean (DDPG)
+    # running observation statistics in front of the MLP (the paper preset; bfc.agent.normalization)
+    normalize_observation: bool = False
     control_hz: float = 100.0  # the rate the policy was trained at, and is flown at
     airframe: dict = field(default_factory=dict)  # the nominal airframe: AirframeParams overrides
 
@@ -49,6 +51,7 @@ class PolicySpec:
             bool(self.position_integral),
         )
         self.squash, self.control_hz, self.init_std = bool(self.squash), float(self.control_hz), float(self.init_std)
+        self.normalize_observation = bool(self.normalize_observation)
         self.airframe = dict(self.airframe or {})
         self.nominal_airframe  # noqa: B018 - validates the overrides
 
@@ -66,6 +69,7 @@ class PolicySpec:
             activation=m.activation,
             init_std=m.init_std,
             squash=m.squash,
+            normalize_observation=m.normalize_observation,
             control_hz=e.control_hz,
             airframe=airframe,
         )
@@ -94,7 +98,9 @@ class PolicySpec:
 
     def make_net(self) -> GaussianActor:
         """A new (untrained) network of this shape."""
-        return GaussianActor(self.observation_size, self.hidden, self.activation, self.init_std, self.squash)
+        return GaussianActor(
+            self.observation_size, self.hidden, self.activation, self.init_std, self.squash, self.normalize_observation
+        )
 
     def make_action_map(self) -> MotorSpeedAction:
         a = self.nominal_airframe

@@ -52,6 +52,9 @@ FLAT_ODOMETRY, FLAT_QUATERNION, FLAT_MOTORS, FLAT_GOAL, FLAT_REWARD = (
 )
 
 
+REWARD_KINDS = ("bfc", "paper")
+
+
 @dataclass
 class RewardParams:
     """Shaped reward: closer and more level is better (weights per term; see docs/env.md).
@@ -62,8 +65,13 @@ class RewardParams:
     and a crash adds -scale * crash_penalty. The step reward is positive everywhere, so staying
     alive always beats crashing (with `alive - P` it is negative far from the goal, and PPO
     learns to crash early to stop paying), and it still grows with every error that shrinks.
+
+    kind="paper" is the paper's sec. 6.4 instead (position and angle terms, a terminal penalty):
+    r = -scale * (position |p - g| + tilt (|roll| + |pitch|) + yaw |yaw|), and a crash (leaving
+    the allowed box, hitting the floor) adds -scale * crash_penalty; the other weights are unused.
     """
 
+    kind: str = "bfc"  # bfc | paper (conf/reward/paper.yaml)
     alive: float = 1.0
     position: float = 1.0
     tilt: float = 0.5
@@ -78,7 +86,8 @@ class RewardParams:
     scale: float = 0.01
 
     def __post_init__(self) -> None:
-        for f in fields(self):
+        _check(self.kind in REWARD_KINDS, "env.reward.kind", " or ".join(REWARD_KINDS), self.kind)
+        for f in fields(self)[1:]:
             v = getattr(self, f.name)
             _check(isinstance(v, (int, float)) and math.isfinite(v), f"env.reward.{f.name}", "a finite number", v)
         _check(self.precision_radius > 0, "env.reward.precision_radius", "> 0", self.precision_radius)
@@ -613,12 +622,18 @@ class QuadrotorEnv(EnvBase):
 
     def _reward_and_crash(self, phys: np.ndarray, cmd: np.ndarray, prev_vz: np.ndarray):
         """Shaped reward (see RewardParams) and the crash flag (see TerminationParams)."""
-        rp, tp = self.reward_params, self.termination
+        rp = self.reward_params
         px, py, pz, w, x, y, z, vx, vy, vz, wx, wy, wz = phys[:, 1:14].T
         g = self._goal.numpy()
         dx, dy, dz = px - g[:, 0], py - g[:, 1], pz - g[:, 2]
         dist = np.sqrt(dx * dx + dy * dy + dz * dz)
         cos_tilt = 1 - 2 * (x * x + y * y)  # world-z component of the body z axis
+        if rp.kind == "paper":
+            roll = np.arctan2(2 * (w * x + y * z), cos_tilt)
+            pitch = np.arcsin(np.clip(2 * (w * y - z * x), -1.0, 1.0))
+            yaw = np.arctan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))
+            r = -(rp.position * dist + rp.tilt * (np.abs(roll) + np.abs(pitch)) + rp.yaw * np.abs(yaw))
+            return self._crashed_reward(r, phys, cos_tilt, prev_vz)
         act = (cmd - self.hover_speed) / self.hover_speed
         act *= act
         penalty = rp.position * dist + rp.tilt * (1 - cos_tilt)
@@ -630,6 +645,12 @@ class QuadrotorEnv(EnvBase):
         penalty += rp.yaw_rate * (wz * wz)
         penalty += rp.action * (act[:, 0] + act[:, 1] + act[:, 2] + act[:, 3])
         r = rp.alive * np.exp(-penalty / rp.alive) + rp.precision * np.exp(-np.square(dist / rp.precision_radius))
+        return self._crashed_reward(r, phys, cos_tilt, prev_vz)
+
+    def _crashed_reward(self, r: np.ndarray, phys: np.ndarray, cos_tilt: np.ndarray, prev_vz: np.ndarray):
+        """(scale * (r - crash_penalty where crashed), crashed): the crash rule of TerminationParams."""
+        rp, tp = self.reward_params, self.termination
+        px, py, pz, w, x, y, z = phys[:, 1:8].T
         # Lowest point of the collision box: is the drone touching the floor?
         hx, hy, hz = HULL_HALF_SIZE
         lowest = pz - (hx * np.abs(2 * (x * z - w * y)) + hy * np.abs(2 * (y * z + w * x)) + hz * np.abs(cos_tilt))

@@ -38,15 +38,19 @@ _KEYS = (
 
 
 class QValue(torch.nn.Module):
-    """Q(s, a): an MLP on the observation and the action side by side."""
+    """Q(s, a): an MLP on the observation and the action side by side (the observation through
+    the actor's ObservationNorm first, when the policy has one)."""
 
-    def __init__(self, obs_size: int, hidden, activation: str = "tanh"):
+    def __init__(self, obs_size: int, hidden, activation: str = "tanh", obs_norm=None):
         super().__init__()
+        object.__setattr__(self, "obs_norm", obs_norm)  # the actor's (not a submodule: see Normalized)
         self.net = MLP(
             in_features=obs_size + 4, out_features=1, num_cells=list(hidden), activation_class=ACTIVATIONS[activation]
         )
 
     def forward(self, observation: torch.Tensor, action: torch.Tensor) -> torch.Tensor:
+        if self.obs_norm is not None:
+            observation = self.obs_norm(observation)
         return self.net(torch.cat((observation, action), -1))
 
 
@@ -62,7 +66,7 @@ class DDPG:
         net.log_std.requires_grad_(False)  # fixed exploration noise
         obs_size = net.obs_size
         self.q = TensorDictModule(
-            QValue(obs_size, m.critic_hidden, m.activation),
+            QValue(obs_size, m.critic_hidden, m.activation, net.obs_norm),
             in_keys=[keys.OBSERVATION, keys.ACTION],
             out_keys=["state_action_value"],
         )
@@ -70,10 +74,12 @@ class DDPG:
         self.loss_module.make_value_estimator(ValueEstimators.TD0, gamma=a.gamma)
         self.target_update = SoftUpdate(self.loss_module, tau=a.tau)
         self.actor_optimizer = torch.optim.Adam(
-            [p for p in self.loss_module.actor_network_params.values(True, True) if p.requires_grad], lr=a.actor_lr
+            [p for p in self.loss_module.actor_network_params.values(True, True) if p.requires_grad],
+            lr=a.actor_lr,
+            eps=cfg.optim.adam_eps,
         )
         self.critic_optimizer = torch.optim.Adam(
-            self.loss_module.value_network_params.values(True, True), lr=a.critic_lr
+            self.loss_module.value_network_params.values(True, True), lr=a.critic_lr, eps=cfg.optim.adam_eps
         )
         self.optimizers = [self.actor_optimizer, self.critic_optimizer]
         self.buffer = TensorDictReplayBuffer(

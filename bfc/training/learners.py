@@ -27,3 +27,9 @@ def make_learner(cfg, actor, critic):
 
         return DDPG(cfg, actor, critic)
     raise ValueError(f"algo.name must be one of {', '.join(ALGORITHMS)}, got {name!r}")
+
+
+def learner_gamma(cfg) -> float:
+    """The discount the learner `algo.name` uses (PPO `loss.gamma`, TRPO and DDPG their own)."""
+    name = cfg.algo.name
+    return float(cfg.loss.gamma if name == "ppo" else cfg.algo[name].gamma)

@@ -30,9 +30,10 @@ from omegaconf import OmegaConf
 
 from bfc import keys
 from bfc.agent import PolicySpec, atomic_save, make_critic, save_policy, torchrl_actor
+from bfc.agent.normalization import RewardScale
 from bfc.collectors import episode_stats, make_collection
 from bfc.evaluation.evaluator import ProtocolEvaluator
-from bfc.training.learners import make_learner
+from bfc.training.learners import learner_gamma, make_learner
 
 PAPER_SUCCESS = 0.905
 CHECKPOINT = Path("checkpoints") / "last.pt"
@@ -118,8 +119,10 @@ class Runner:
         self.net = self.spec.make_net()  # the policy: what policy.pt stores
         self.actor = torchrl_actor(self.net)  # TorchRL's view of it
         m = cfg.model
-        self.critic = make_critic(self.spec.observation_size, m.critic_hidden, m.activation)
+        self.critic = make_critic(self.spec.observation_size, m.critic_hidden, m.activation, self.net.obs_norm)
         self.learner = make_learner(cfg, self.actor, self.critic)
+        # optim.normalize_reward: Baselines' VecNormalize on rewards, at the learner's discount
+        self.reward_scale = RewardScale(cfg.env.num_envs, learner_gamma(cfg)) if cfg.optim.normalize_reward else None
         fpb = int(cfg.collector.frames_per_batch)
         self.total = -(-int(cfg.collector.total_frames) // fpb) * fpb  # whole batches
         # the env, its curriculum and the collector (here, or in a worker process)
@@ -135,6 +138,7 @@ class Runner:
         cores, workers = os.cpu_count() or 1, int(cfg.collector.workers)
         self.update_threads = int(cfg.torch_threads or max(1, cores - workers))
         self.stopped_early = False  # collector.stop_at_success was met
+        self.paused = False  # checkpoint.pause_at_frames was reached
 
     # ------------------------------------------------------------------ save / load
     def state_dict(self) -> dict:
@@ -151,6 +155,7 @@ class Runner:
             **self.learner.state_dict(),
             "collector": self.collection.state_dict(),
             "torch_rng": torch.get_rng_state(),
+            **({"reward_scale": self.reward_scale.state_dict()} if self.reward_scale is not None else {}),
         }
 
     def save(self, path=None) -> None:
@@ -171,6 +176,8 @@ class Runner:
             self.resumed_from = [*ckpt["resumed_from"], self.frames]
             self.best_error = float(ckpt["best_error"])
             self.collection.load_state_dict(ckpt["collector"])
+            if self.reward_scale is not None:
+                self.reward_scale.load_state_dict(ckpt["reward_scale"])
         except (KeyError, RuntimeError, ValueError) as err:
             first = str(err).strip().splitlines()[0][:200] if str(err).strip() else type(err).__name__
             raise ValueError(
@@ -220,6 +227,10 @@ class Runner:
         recent = [h["eval/success_rate"] for h in self.history if h["frames"] > 0][-c.stop_patience :]
         return len(recent) == c.stop_patience and min(recent) >= c.stop_at_success
 
+    def pause_due(self) -> bool:
+        pause = self.cfg.checkpoint.pause_at_frames
+        return pause is not None and self.frames >= pause
+
     def first_reach(self, level: float):
         for h in self.history:
             if h["eval/success_rate"] >= level:
@@ -240,6 +251,10 @@ class Runner:
             return json.loads((run_dir / "summary.json").read_text())
         else:
             self.load(ckpt)
+            if self.pause_due():
+                print(f"{run_dir} is paused at {self.frames} frames (checkpoint.pause_at_frames): nothing to do")
+                self.paused = True
+                return json.loads((run_dir / "summary.json").read_text())
         if cfg.logger.tensorboard:
             # torch's SummaryWriter, which TorchRL's TensorboardLogger wraps (importing it alone
             # saves TorchRL's record package's 0.4 s of start-up); events go to <run dir>/tb
@@ -287,15 +302,16 @@ class Runner:
                 if css is not None and self.logger is not None:
                     self.logger.add_image("css/square_values", css_image(css[0]), self.frames)
                 self.stopped_early = self.frames < self.total and self.should_stop()
-            if self.frames >= next_ckpt or self.frames >= self.total or self.stopped_early:
+            self.paused = self.frames < self.total and not self.stopped_early and self.pause_due()
+            if self.frames >= next_ckpt or self.frames >= self.total or self.stopped_early or self.paused:
                 self.save()
-                next_ckpt += c.interval_frames
+                next_ckpt = (self.frames // c.interval_frames + 1) * c.interval_frames
             if progress is not None:
                 progress.update(n)
                 progress.set_postfix(fps=f"{metrics['time/fps']:.0f}", success=f"{last_success:.2f}", refresh=False)
             torch.set_num_threads(1)  # collection: MuJoCo's threads get the cores
             t_batch = time.perf_counter()
-            if self.frames >= self.total or self.stopped_early:
+            if self.frames >= self.total or self.stopped_early or self.paused:
                 break
         if progress is not None:
             progress.close()
@@ -313,8 +329,15 @@ class Runner:
                 for group in optimizer.param_groups:
                     group.setdefault("initial_lr", group["lr"])
                     group["lr"] = group["initial_lr"] * factor
-        metrics = self.learner.update(data)
+        batch = data
+        if self.reward_scale is not None:  # the learner sees scaled rewards; the logs, the env's
+            batch = data.clone()
+            done = data.get(("next", keys.DONE))
+            batch.set(("next", keys.REWARD), self.reward_scale(data.get(("next", keys.REWARD)), done))
+        metrics = self.learner.update(batch)
         metrics["train/lr"] = self.learner.optimizers[0].param_groups[0]["lr"]
+        if self.net.obs_norm is not None:  # after the update: it scored the batch with the stats it was collected with
+            self.net.obs_norm.update(data.get(keys.OBSERVATION))
         self.collection.update_policy_weights_()
         return metrics
 
@@ -346,6 +369,7 @@ class Runner:
             "first_reached_0.905": self.first_reach(PAPER_SUCCESS),
             "first_reached_0.99": self.first_reach(0.99),
             "stopped_early": self.stopped_early,
+            "paused": self.paused,  # checkpoint.pause_at_frames: the same command resumes it
             "collecting_since_unix_seconds": round(self.collecting_since, 3),
             "collection_frames_per_second": round(
                 self.timing["batches"] * cfg.collector.frames_per_batch / max(self.timing["collect_seconds"], 1e-9)
@@ -355,7 +379,7 @@ class Runner:
             "history": self.history,
         }
         (run_dir / "summary.json").write_text(json.dumps(summary, indent=1))
-        if self.logger is not None:
+        if self.logger is not None and not self.paused:
             final = {"hparam/success_rate": summary["final_success_rate"] or 0.0, "hparam/best_success_rate": self.best}
             self.logger.add_hparams(hparams(cfg), final, run_name="hparams")
             self.logger.flush()

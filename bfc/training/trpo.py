@@ -50,7 +50,7 @@ class TRPO:
         self.critic = critic
         self.params = [p for p in self.net.parameters() if p.requires_grad]
         self.advantage = make_gae(self.algo.gamma, self.algo.lmbda, critic)
-        self.optimizer = torch.optim.Adam(critic.parameters(), lr=cfg.optim.lr)
+        self.optimizer = torch.optim.Adam(critic.parameters(), lr=cfg.optim.lr, eps=cfg.optim.adam_eps)
         self.optimizers = [self.optimizer]
         self.last_kl = 0.0
 
