@@ -248,13 +248,13 @@ PAPER_ORDER = ("ppo", "jd", "css", "tdts", "jd_css", "jd_tdts", "css_tdts", "jd_
 TABLE2_STARTS = {"protocol": "protocol", "ground": "take-off (ground)", "any": "any attitude"}
 
 
-def read_runs(runs_dir: Path) -> dict[str, list[dict]]:
-    """{row label: [run, ...]} for every run (`summary.json` + `config.yaml`) below `runs_dir`;
+def read_runs(*runs_dirs: Path) -> dict[str, list[dict]]:
+    """{row label: [run, ...]} for every run (`summary.json` + `config.yaml`) below the `runs_dirs`;
     PPO rows keep the variant's name, other algorithms are prefixed with theirs; paper order."""
     import yaml
 
     by_variant: dict[str, list[dict]] = {}
-    for summary_path in sorted(runs_dir.rglob("summary.json")):
+    for summary_path in sorted(p for d in runs_dirs for p in Path(d).rglob("summary.json")):
         cfg = yaml.safe_load((summary_path.parent / "config.yaml").read_text())
         algo = (cfg.get("algo") or {}).get("name", "ppo")
         variant = cfg.get("variant") or "?"
@@ -264,6 +264,7 @@ def read_runs(runs_dir: Path) -> dict[str, list[dict]]:
                 "dir": summary_path.parent,
                 "seed": cfg["seed"],
                 "frames": cfg["collector"]["total_frames"],
+                "schedule_frames": cfg["collector"]["total_frames"],  # "frames": as far as it went (summary)
                 **json.loads(summary_path.read_text()),
             }
         )
@@ -336,15 +337,19 @@ def table2(by_variant: dict, protocol: TestProtocolConfig) -> list[str]:
     return lines
 
 
-def runs_sections(runs_dir: Path, out: Path, protocol: TestProtocolConfig | None = None) -> list[str]:
-    """Table 2 and the learning curves (figs. 8-10) of every run (`summary.json`) below `runs_dir`:
-    the final policies flown on the test starts, the evaluations from the summaries, the episode
-    returns from the TensorBoard events. Per-run figures go to `out`/table2.json."""
+def runs_sections(runs_dir, out: Path, protocol: TestProtocolConfig | None = None, by_variant=None) -> list[str]:
+    """Table 2 and the learning curves (figs. 8-10) of every run (`summary.json`) below `runs_dir`
+    (a directory or a list of them): the final policies flown on the test starts, the evaluations
+    from the summaries, the episode returns from the TensorBoard events. Per-run figures go to
+    `out`/table2.json. `by_variant`: runs already read (read_runs), flown here if not yet."""
     protocol = protocol or TestProtocolConfig()
-    by_variant = read_runs(runs_dir)
+    dirs = [Path(d) for d in runs_dir] if isinstance(runs_dir, (list, tuple)) else [Path(runs_dir)]
+    runs_dir = ", ".join(str(d) for d in dirs)
+    by_variant = read_runs(*dirs) if by_variant is None else by_variant
     if not by_variant:
         return ["## Ablation (Table 2)", f"No training runs (summary.json) under {runs_dir}.", ""]
-    fly_final_policies(by_variant, protocol)
+    if any("test" not in r for runs in by_variant.values() for r in runs):
+        fly_final_policies(by_variant, protocol)
     per_run = {
         v: [{k: (str(x) if k == "dir" else x) for k, x in r.items() if k != "history"} for r in runs]
         for v, runs in by_variant.items()

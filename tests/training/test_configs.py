@@ -131,36 +131,123 @@ def test_missing_resume_dir_fails_cleanly():
     assert "no checkpoints/last.pt" in one_line_error(run_cli("resume=/nonexistent/run"))
 
 
-def test_paper_preset_sets_exactly_what_it_says():
-    """+preset=paper: 250 Hz, 2x256 actor and critic, the 18-number odometry observation, the
-    speed map, TDTS terminal, no robust extras; composable with an ablation variant; nothing else
-    differs from the paper's BFC (extras=none)."""
+# What each paper preset sets, with where the value comes from (the presets' comments cite the
+# same): the paper, and OpenAI Baselines' defaults at ea25b9e for what the paper leaves open.
+PAPER_COMMON = {
+    "env.control_hz": 250.0,  # sec. 6.3
+    "model.observation": "odometry",  # sec. 5
+    "model.action_map": "speed",  # sec. 6.3
+    "model.activation": "tanh",  # Baselines' mlp()
+    "model.normalize_observation": True,  # run.py: VecNormalize
+    "optim.normalize_reward": True,  # VecNormalize(ret=True)
+    "tdts.as_terminal": True,  # Algorithm 1
+    "env.reward.kind": "paper",  # sec. 6.4 (conf/reward/paper.yaml)
+    "env.reward.position": 1.0,
+    "env.reward.tilt": 0.5,
+    "env.reward.yaw": 0.1,
+    "env.reward.crash_penalty": 100.0,
+    "env.reward.scale": 0.01,
+}
+PAPER_PRESETS = {
+    "paper": {  # ppo2/defaults.py mujoco(), ppo2.py learn(), model.py
+        "model.actor_hidden": [256, 256],
+        "model.critic_hidden": [256, 256],
+        "model.init_std": 1.0,
+        "collector.frames_per_batch": 8192,
+        "loss.kind": "clip",
+        "loss.gamma": 0.99,
+        "loss.lmbda": 0.95,
+        "loss.clip_epsilon": 0.2,
+        "loss.clip_value": 0.2,
+        "loss.epochs": 10,
+        "loss.num_minibatches": 32,
+        "loss.entropy_coeff": 0.0,
+        "loss.critic_coeff": 0.25,
+        "loss.critic_loss": "l2",
+        "optim.lr": 3e-4,
+        "optim.anneal_lr": True,
+        "optim.max_grad_norm": 0.5,
+        "optim.adam_eps": 1e-5,
+    },
+    "paper_trpo": {  # trpo_mpi/defaults.py mujoco(), trpo_mpi.py learn()
+        "algo.name": "trpo",
+        "model.actor_hidden": [64, 64],
+        "model.critic_hidden": [64, 64],
+        "model.init_std": 1.0,
+        "collector.frames_per_batch": 1024,
+        "algo.trpo.max_kl": 0.01,
+        "algo.trpo.cg_iterations": 10,
+        "algo.trpo.damping": 0.1,
+        "algo.trpo.gamma": 0.99,
+        "algo.trpo.lmbda": 0.98,
+        "algo.trpo.critic_epochs": 5,
+        "algo.trpo.critic_minibatches": 16,
+        "optim.lr": 1e-3,
+        "optim.anneal_lr": False,
+        "optim.adam_eps": 1e-8,
+    },
+    "paper_ddpg": {  # ddpg/ddpg.py learn()
+        "algo.name": "ddpg",
+        "model.actor_hidden": [400, 400],
+        "model.critic_hidden": [400, 400],
+        "model.init_std": 0.2,
+        "model.squash": True,
+        "collector.frames_per_batch": 2048,
+        "algo.ddpg.batch_size": 64,
+        "algo.ddpg.tau": 0.01,
+        "algo.ddpg.actor_lr": 1e-4,
+        "algo.ddpg.critic_lr": 1e-3,
+        "algo.ddpg.gamma": 0.99,
+        "algo.ddpg.buffer_size": 1_000_000,
+        "algo.ddpg.updates_per_batch": 1024,
+        "optim.anneal_lr": False,
+        "optim.max_grad_norm": 1e6,
+    },
+}
+
+
+def _flat(cfg, prefix=""):
+    from omegaconf import OmegaConf
+
+    out = {}
+    for key, value in (OmegaConf.to_container(cfg) if not isinstance(cfg, dict) else cfg).items():
+        if isinstance(value, dict):
+            out.update(_flat(value, f"{prefix}{key}."))
+        else:
+            out[f"{prefix}{key}"] = value
+    return out
+
+
+@pytest.mark.parametrize("preset", sorted(PAPER_PRESETS))
+def test_paper_preset_sets_each_cited_value_and_nothing_else(preset):
+    """Each paper preset sets every value its comments cite (the paper's, Baselines' defaults), on
+    top of the paper's BFC without bfc's extras (extras=none) and nothing else; an ablation
+    variant composes with it."""
+    expected = {**PAPER_COMMON, **PAPER_PRESETS[preset]}
+    algo = PAPER_PRESETS[preset].get("algo.name", "ppo")
+    paper = _flat(compose_cfg([f"+preset={preset}"]))
+    plain = _flat(compose_cfg(["extras=none", f"algo={algo}"]))
+    for key, value in expected.items():
+        assert paper[key] == value, key
+    changed = {k for k in plain if paper[k] != plain[k]}
+    assert changed <= set(expected), changed - set(expected)
+    assert paper["variant"] == "jd_css_tdts" and paper["jd.enabled"] and not paper["model.position_integral"]
+    with_jd = _flat(compose_cfg([f"+preset={preset}", "+ablation=jd"]))
+    assert with_jd["variant"] == "jd" and not with_jd["css.enabled"]
+    assert {k: with_jd[k] for k in expected} == expected
+
+
+def test_a_paper_preset_beside_another_algorithm_names_the_right_preset():
+    err = one_line_error(run_cli("+preset=paper", "algo=trpo"))
+    assert "use +preset=paper_trpo" in err
+
+
+def test_paper_preset_builds_the_env_it_says():
+    """+preset=paper's env: 250 Hz, the speed map, the 18 odometry numbers relative to the goal."""
     from bfc.factory import find_transform, make_env
     from bfc.transforms import MotorSpeedAction, PolicyObservation
 
-    paper, plain = compose_cfg(["+preset=paper"]), compose_cfg(["extras=none"])
-    assert paper.env.control_hz == 250.0 and paper.tdts.as_terminal
-    assert list(paper.model.actor_hidden) == [256, 256] and list(paper.model.critic_hidden) == [256, 256]
-    assert paper.model.observation == "odometry" and paper.model.action_map == "speed"
-    assert not paper.model.position_integral and paper.env.randomize == plain.env.randomize
-    expected = {
-        "env.control_hz",
-        "tdts.as_terminal",
-        "model.actor_hidden",
-        "model.critic_hidden",
-        "model.observation",
-        "model.action_map",
-    }
-    changed = {
-        f"{s}.{k}"
-        for s in plain
-        if isinstance(plain[s], type(plain.env))
-        for k in plain[s]
-        if paper[s][k] != plain[s][k]
-    }
-    assert changed == expected
-    with_jd = compose_cfg(["+preset=paper", "+ablation=jd"])
-    assert with_jd.variant == "jd" and with_jd.env.control_hz == 250.0 and not with_jd.css.enabled
+    paper = compose_cfg(["+preset=paper"])
     paper.env.num_envs = 4
     env = make_env(paper, seed=0)
     assert env.base_env.control_hz == 250.0 and find_transform(env, MotorSpeedAction).action_map == "speed"

@@ -1,0 +1,199 @@
+"""The paper's regime report (docs/report/paper_regime/): does the paper's Table 2 hold when the
+paper is trained as written (+preset=paper) for as long as it asks?
+
+It reads the sweep of `bench/paper_regime.sh` (runs paused on the way are read as far as they
+went, and say so), flies every run's final policy on the test starts (bfc.evaluation.report's
+Table 2), puts the result beside the paper's Table 2 and bfc's own (docs/report/table2), and
+answers each of the paper's claims in each regime from the numbers, by the rules written under
+the claims table. `bench/paper_regime_report.py` writes it.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+from bfc.config import TestProtocolConfig
+from bfc.evaluation.report import fly_final_policies, mean_spread, read_runs, runs_sections
+
+# The paper's Table 2 (success out of 100, mean over its seeds) and figs. 5-10 for the rest.
+PAPER_TABLE2 = {"jd_css_tdts": 90.5, "jd_css": 67.0, "jd_tdts": 25.0, "jd": 16.0}
+PAPER_NO_POLICY = ("ppo", "css", "tdts", "css_tdts")  # "did not learn a flight policy" (figs. 8-10)
+TABLE2_ORDER = (*PAPER_TABLE2, *PAPER_NO_POLICY)
+LEARNED = 0.5  # a variant "learns" when its mean final test success is at least this
+NOTHING = 0.1  # and "does not learn" when it is below this
+
+
+def protocol_means(by_variant: dict) -> dict[str, float]:
+    """{row label: mean over seeds of the final policies' success on the protocol's test starts}."""
+    out = {}
+    for label, runs in by_variant.items():
+        rates = [r.get("test", {}).get("protocol") for r in runs]
+        known = [x for x in rates if x is not None]
+        if known:
+            out[label] = sum(known) / len(known)
+    return out
+
+
+def _runs_from_json(path: Path) -> dict[str, list[dict]]:
+    return json.loads(path.read_text()) if path.is_file() else {}
+
+
+def _pct(x: float | None) -> str:
+    return "n/a" if x is None else f"{100 * x:.1f}"
+
+
+def claims(regime: dict[str, float], bfc: dict[str, float], algos: dict[str, float]) -> list[list[str]]:
+    """[claim, the paper, the paper's regime, bfc's regime, what bfc changed] rows, each verdict
+    computed from the means (protocol test success of the final policies)."""
+
+    def necessary(means: dict[str, float]) -> str:
+        jd = {v: means[v] for v in ("jd", "jd_css", "jd_tdts", "jd_css_tdts") if v in means}
+        no = {v: means[v] for v in PAPER_NO_POLICY if v in means}
+        if not jd or not no:
+            return "not measured"
+        best_no, best_jd = max(no, key=no.get), max(jd, key=jd.get)
+        figures = f"best without JD {best_no} {_pct(no[best_no])}, best with JD {best_jd} {_pct(jd[best_jd])}"
+        if no[best_no] < NOTHING and jd[best_jd] >= LEARNED:
+            return f"holds ({figures})"
+        if jd[best_jd] < NOTHING:
+            return f"undecided: nothing learned ({figures})"
+        return f"does not hold ({figures})"
+
+    def ordered(means: dict[str, float]) -> str:
+        order = [v for v in ("jd_css_tdts", "jd_css", "jd_tdts", "jd") if v in means]
+        if len(order) < 4:
+            return "not measured"
+        figures = ", ".join(f"{v} {_pct(means[v])}" for v in order)
+        if all(means[v] < NOTHING for v in order):
+            return f"undecided: nothing learned ({figures})"
+        holds = all(means[a] > means[b] for a, b in zip(order, order[1:], strict=False))
+        return f"{'holds' if holds else 'does not hold'} ({figures})"
+
+    def ppo_beats_trpo(means: dict[str, float]) -> str:
+        ppo, trpo = means.get("jd_css_tdts"), means.get("trpo jd_css_tdts")
+        if ppo is None or trpo is None:
+            return "not measured"
+        figures = f"PPO {_pct(ppo)}, TRPO {_pct(trpo)}"
+        return f"{'holds' if ppo > trpo else 'does not hold'} ({figures})"
+
+    def plain_fail(means: dict[str, float]) -> str:
+        plain = {k: means[k] for k in ("ppo", "trpo ppo", "ddpg ppo") if k in means}
+        if not plain:
+            return "not measured"
+        figures = ", ".join(f"{k.split()[0]} {_pct(v)}" for k, v in plain.items())
+        failed = [v < NOTHING for v in plain.values()]
+        verdict = "holds" if all(failed) else ("does not hold" if not any(failed) else "holds in part")
+        return f"{verdict} ({figures})"
+
+    bfc_all = {**bfc, **algos}
+    return [
+        [
+            "JD is necessary: without it no variant learns",
+            "PPO, CSS, TDTS, CSS-TDTS learned no flight policy",
+            necessary(regime),
+            necessary(bfc_all),
+            "bfc's reward (positive everywhere, docs/env.md), its observation (heading frame, rotation "
+            'matrix, the last command) and thrust map (docs/training.md, "What made it learn")',
+        ],
+        [
+            "BFC > JD-CSS > JD-TDTS > JD",
+            "90.5 > 67 > 25 > 16",
+            ordered(regime),
+            ordered(bfc_all),
+            "in bfc's regime every JD variant flies nearly every start by 2M frames: the order is within seed noise",
+        ],
+        [
+            "enhanced PPO beats enhanced TRPO",
+            "PPO learned faster and better (figs. 5-7)",
+            ppo_beats_trpo(regime),
+            ppo_beats_trpo(bfc_all),
+            "TRPO on bfc's env and settings (docs/report/algos)",
+        ],
+        [
+            "plain DDPG, TRPO and PPO do not learn",
+            "none learned (figs. 5-7)",
+            plain_fail(regime),
+            plain_fail(bfc_all),
+            "the same changes as the first row",
+        ],
+    ]
+
+
+def write_regime_report(
+    sweep_dirs,
+    out,
+    bfc_table2=None,
+    bfc_algos=None,
+    protocol: TestProtocolConfig | None = None,
+    header: str = "",
+) -> Path:
+    """report.md, learning_curves.png and table2.json in `out` for the runs under `sweep_dirs`,
+    beside the paper's Table 2 and bfc's (the table2.json files of docs/report/table2 and algos)."""
+    protocol = protocol or TestProtocolConfig()
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    dirs = [Path(d) for d in sweep_dirs]
+    by_variant = read_runs(*dirs)
+    fly_final_policies(by_variant, protocol)
+    regime = protocol_means(by_variant)
+    bfc = protocol_means(_runs_from_json(Path(bfc_table2))) if bfc_table2 else {}
+    algos = protocol_means(_runs_from_json(Path(bfc_algos))) if bfc_algos else {}
+
+    runs = [r for rs in by_variant.values() for r in rs]
+    frames = sum(int(r.get("frames", 0)) for r in runs)
+    hours = sum(float(r.get("wall_seconds", 0.0)) for r in runs) / 3600
+    paused = [r for r in runs if r.get("paused")]
+    lines = ["# The paper's regime: does its Table 2 hold?", "", header, ""]
+    lines += [
+        "## Where the sweep stands",
+        f"{len(runs)} runs, {frames / 1e6:.1f}M frames and {hours:.2f} h of training wall-clock in all"
+        + (f"; {len(paused)} of them paused on the way (frames below their schedule's end)." if paused else "."),
+        "",
+        "| variant | seed | frames trained | of its schedule | state | training wall-clock (min) |",
+        "|---|---|---|---|---|---|",
+    ]
+    for label, rs in by_variant.items():
+        for r in rs:
+            state = "paused" if r.get("paused") else "finished"
+            schedule = r.get("schedule_frames")
+            lines.append(
+                f"| {label} | {r['seed']} | {int(r.get('frames', 0)):,} | "
+                f"{'n/a' if schedule is None else f'{int(schedule):,}'} | {state} | "
+                f"{float(r.get('wall_seconds', 0.0)) / 60:.1f} |"
+            )
+    lines += [
+        "",
+        "## Table 2 side by side",
+        f"Success on the protocol's {protocol.num_starts} test starts, in percent: the paper's Table 2; "
+        "bfc's own regime (docs/report/table2: bfc's PPO settings, reward and observation, 2M frames, three "
+        "seeds); the paper's regime (this sweep: +preset=paper, the final policy of each run, mean over its seeds).",
+        "",
+        "| variant | the paper | bfc's regime | the paper's regime | seeds, frames (paper's regime) |",
+        "|---|---|---|---|---|",
+    ]
+    for variant in TABLE2_ORDER:
+        paper = f"{PAPER_TABLE2[variant]:g}" if variant in PAPER_TABLE2 else "no policy"
+        here = by_variant.get(variant, [])
+        cell = mean_spread([r.get("test", {}).get("protocol") for r in here]) if here else "not run"
+        trained = ", ".join(f"{int(r.get('frames', 0)) / 1e6:.1f}M" for r in here)
+        seeds = f"{len(here)}: {trained}" if here else ""
+        lines.append(f"| {variant} | {paper} | {_pct(bfc.get(variant))} | {cell} | {seeds} |")
+    lines += [
+        "",
+        "## The paper's claims",
+        "",
+        "| claim | the paper | the paper's regime (this sweep) | bfc's regime | what bfc changed that moves it |",
+        "|---|---|---|---|---|",
+        *("| " + " | ".join(row) + " |" for row in claims(regime, bfc, algos)),
+        "",
+        f"Rules: a variant learns when the mean test success of its final policies is at least "
+        f'{100 * LEARNED:g}%, and does not when it is below {100 * NOTHING:g}%; "undecided" when no '
+        "JD variant learned either (the regime then shows nothing about JD); an order holds when each "
+        "mean is above the next. Runs paused on the way are judged as far as they went.",
+        "",
+    ]
+    lines += runs_sections(dirs, out, protocol, by_variant=by_variant)
+    path = out / "report.md"
+    path.write_text("\n".join(lines) + "\n")
+    return path

@@ -1,0 +1,71 @@
+"""The paper's regime report (bfc.evaluation.regime) on a small fake sweep: the side-by-side
+Table 2, the run states (a paused run says so) and each claim's verdict from the numbers."""
+
+import json
+
+import torch
+
+from bfc.agent import read_policy, save_policy
+from bfc.config import TestProtocolConfig as Protocol
+from bfc.evaluation import fly
+from bfc.evaluation.regime import write_regime_report
+from bfc.evaluation.suites import START_SETS, score
+
+from .scripts import SHIPPED
+from .test_cli import _fake_run
+
+
+def test_regime_report_on_a_fake_sweep(tmp_path):
+    shipped = read_policy(SHIPPED)
+    falling = tmp_path / "falling.pt"  # the motors off: never succeeds
+    net = shipped.spec.make_net()
+    with torch.no_grad():
+        net.mlp[-1].bias.fill_(-1.0)
+    save_policy(falling, shipped.spec, net)
+    sweep, nojd = tmp_path / "sweep", tmp_path / "nojd"
+    _fake_run(sweep / "a", "jd_css_tdts", 0, SHIPPED, 1.0, 1_000_000)
+    _fake_run(sweep / "b", "jd_css_tdts", 1, falling, 0.0, None)
+    _fake_run(sweep / "c", "jd", 0, SHIPPED, 1.0, 1_000_000)
+    for name, variant in (("d", "jd_css"), ("e", "jd_tdts"), ("f", "ppo")):
+        _fake_run(sweep / name, variant, 0, falling, 0.0, None)
+    _fake_run(nojd / "g", "css", 0, falling, 0.0, None)
+    summary = json.loads((sweep / "f" / "summary.json").read_text())
+    (sweep / "f" / "summary.json").write_text(json.dumps({**summary, "frames": 1_000_448, "paused": True}))
+    bfc = tmp_path / "bfc_table2.json"  # bfc's regime: plain PPO flies
+    bfc.write_text(json.dumps({v: [{"test": {"protocol": r}}] for v, r in (("ppo", 0.9), ("jd", 0.95))}))
+    protocol = Protocol(num_starts=6, seconds=3.0)
+    report = write_regime_report([sweep, nojd], tmp_path / "out", bfc_table2=bfc, protocol=protocol).read_text()
+
+    flights = fly(SHIPPED, START_SETS["protocol"](6, protocol.seed), seconds=3.0, seed=protocol.seed)
+    s = 100 * score(flights)["success_rate"]
+    assert s >= 50
+
+    def table(section):  # {first cell: the other cells} of the table under the `## section` heading
+        text = report.split(f"## {section}\n", 1)[1].split("\n## ", 1)[0]
+        lines = [line for line in text.splitlines() if line.startswith("| ")]
+        return {line.split("|")[1].strip(): [c.strip() for c in line.split("|")[2:-1]] for line in lines}
+
+    rows = table("Table 2 side by side")
+    # side by side: the paper's figure, bfc's regime, this sweep (mean +- sd (seeds)), seeds and frames
+    assert rows["jd_css_tdts"][:2] == ["90.5", "n/a"]
+    sd = torch.tensor([s, 0.0], dtype=torch.float64).std().item()
+    assert rows["jd_css_tdts"][2] == f"{s / 2:.1f} +- {sd:.1f} ({s:.0f}, 0)"
+    assert rows["jd_css_tdts"][3] == "2: 2.0M, 2.0M"
+    assert rows["ppo"][:3] == ["no policy", "90.0", "0.0 +- 0.0 (0)"] and rows["ppo"][3] == "1: 1.0M"
+    assert rows["tdts"][2] == "not run"
+    assert "7 runs, 13.0M frames" in report and "1 of them paused" in report
+    assert "| ppo | 0 | 1,000,448 | 2,000,000 | paused |" in report
+    # each claim's verdict, from the numbers
+    rows = table("The paper's claims")
+    assert rows["JD is necessary: without it no variant learns"][1] == (
+        f"holds (best without JD ppo 0.0, best with JD jd {s:.1f})"
+    )
+    assert rows["JD is necessary: without it no variant learns"][2].startswith(
+        "does not hold (best without JD ppo 90.0"
+    )
+    assert rows["BFC > JD-CSS > JD-TDTS > JD"][1].startswith("does not hold (jd_css_tdts")
+    assert rows["enhanced PPO beats enhanced TRPO"][1] == "not measured"
+    assert rows["plain DDPG, TRPO and PPO do not learn"][1] == "holds (ppo 0.0)"
+    assert (tmp_path / "out" / "learning_curves.png").stat().st_size > 10_000
+    saved = json.loads((tmp_path / "out" / "table2.json").read_text())
+    assert saved["css"][0]["test"]["protocol"] == 0.0
