@@ -2,7 +2,7 @@
 
 python train.py                                  # the full BFC (JD-CSS-TDTS) + bfc's robust extras
 python train.py extras=none                      # the paper's BFC alone
-python train.py algo=trpo +preset=paper          # TRPO (or algo=ddpg); the paper as written
+python train.py +preset=paper                    # the paper as written (+preset=paper_trpo, paper_ddpg)
 python train.py +ablation=jd_tdts seed=1         # one ablation variant
 python train.py -m +ablation=ppo,jd,jd_css_tdts seed=0,1,2   # a sweep
 python train.py resume=outputs/2026-11-22/10-00-00           # continue a killed run
@@ -26,9 +26,13 @@ from bfc.config import check_keys, validate  # importing bfc.config registers th
 from bfc.sweeps import objective, write_status
 from bfc.training import train
 
+# What a resume may change from the command line (everything else is the run's own config)
+RESUME_OVERRIDES = ("checkpoint.pause_at_frames",)
+
 
 def resume_config(cfg):
-    """The config a killed run started with (it goes on with that), and its directory."""
+    """The config a killed run started with (it goes on with that, but for RESUME_OVERRIDES given
+    on the command line: a paused run goes on to a new pause), and its directory."""
     run_dir = Path(cfg.resume)
     if not any((run_dir / "checkpoints" / name).is_file() for name in ("last.pt", "previous.pt")):
         raise FileNotFoundError(f"resume={cfg.resume}: no checkpoints/last.pt there to resume from")
@@ -39,7 +43,12 @@ def resume_config(cfg):
         check_keys(saved)
     except ValueError as err:
         raise ValueError(f"resume={cfg.resume}: its config.yaml is from another bfc version ({err})") from None
-    return OmegaConf.merge(cfg, saved, {"resume": str(run_dir)}), run_dir
+    merged = OmegaConf.merge(cfg, saved, {"resume": str(run_dir)})
+    given = {o.split("=", 1)[0].lstrip("+") for o in HydraConfig.get().overrides.task}
+    for key in RESUME_OVERRIDES:
+        if key in given:
+            OmegaConf.update(merged, key, OmegaConf.select(cfg, key))
+    return merged, run_dir
 
 
 @hydra.main(config_path="conf", config_name="config", version_base="1.3")

@@ -175,3 +175,24 @@ def test_a_paused_run_resumes_to_the_same_weights_as_one_never_paused(tmp_path):
 def test_bad_values_of_the_new_keys_are_one_line(override, message):
     with pytest.raises(ValueError, match=message.replace("(", r"\(").replace(")", r"\)")):
         validate(compose_cfg([override]))
+
+
+def test_a_paused_run_goes_on_to_a_new_pause_through_resume(tmp_path):
+    """`train.py resume=<run> checkpoint.pause_at_frames=N` moves the pause of a paused run (the
+    one key a resume takes from the command line; the rest is the run's own config)."""
+    from tests.evaluation.scripts import run_script
+
+    run = tmp_path / "run"
+    r = run_script("train.py", *TINY, "checkpoint.pause_at_frames=512", out=run)
+    assert r.returncode == 0, r.stderr[-2000:]
+    assert json.loads((run / "summary.json").read_text())["frames"] == 512
+    r = run_script(
+        "train.py",
+        f"resume={run}",
+        "checkpoint.pause_at_frames=1024",
+        "collector.total_frames=99",
+        out=tmp_path / "ignored",
+    )
+    assert r.returncode == 0, r.stderr[-2000:]
+    summary = json.loads((run / "summary.json").read_text())
+    assert summary["frames"] == 1024 and summary["paused"] and summary["resumed_from"] == [512]
