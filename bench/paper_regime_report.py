@@ -22,7 +22,7 @@ COMMAND = "python bench/paper_regime_report.py"
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--sweeps", nargs="+", default=["multirun/paper_regime", "multirun/paper_regime_nojd"])
+    parser.add_argument("--sweeps", nargs="+", default=[f"multirun/paper_regime{s}" for s in ("", "_nojd", "_algos")])
     parser.add_argument("--out", default="docs/report/paper_regime")
     parser.add_argument("--starts", type=int, default=100, help="test starts per set")
     args = parser.parse_args()

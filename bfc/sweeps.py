@@ -39,7 +39,10 @@ def read_runs(sweep_dir) -> list[dict]:
         status_file = run_dir / STATUS
         status = json.loads(status_file.read_text()) if status_file.is_file() else {}
         state = status.get("status", "unfinished")
-        if (run_dir / "summary.json").is_file() and state in ("finished", "unfinished", "running"):
+        summary = run_dir / "summary.json"
+        # a paused run's summary is not the end: resumed and then killed, it is unfinished
+        ended = summary.is_file() and not json.loads(summary.read_text()).get("paused")
+        if ended and state in ("finished", "unfinished", "running"):
             state = "finished"
         elif state == "running":
             state = "unfinished"
@@ -61,7 +64,7 @@ class SweepReport(Callback):
             if r["status"] != "finished":
                 why = f": {r['error']}" if r.get("error") else ""
                 print(f"  {r['status']}: {r['run_dir']}{why}", file=sys.stderr)
-        if len(done) < len(rows):
+        if len(done) < len(rows):  # paused jobs too: a sweep run in stages ends with status 1 until its last
             print(f"  to resume: run the same command again with hydra.sweep.dir={sweep_dir}", file=sys.stderr)
             sys.stdout.flush()
             sys.stderr.flush()

@@ -94,9 +94,10 @@ def make_loss(cfg, actor, critic):
         critic_coeff=lo.critic_coeff,
         loss_critic_type=lo.critic_loss,
         normalize_advantage=True,
+        clip_value=lo.clip_value,
     )
     if lo.kind == "clip":
-        loss = ClipPPOLoss(actor, critic, clip_epsilon=lo.clip_epsilon, clip_value=lo.clip_value, **common)
+        loss = ClipPPOLoss(actor, critic, clip_epsilon=lo.clip_epsilon, **common)
     else:
         loss = KLPENPPOLoss(actor, critic, dtarg=lo.dtarg, **common)
     return loss, make_gae(lo.gamma, lo.lmbda, critic)

@@ -139,6 +139,7 @@ class Runner:
         self.update_threads = int(cfg.torch_threads or max(1, cores - workers))
         self.stopped_early = False  # collector.stop_at_success was met
         self.paused = False  # checkpoint.pause_at_frames was reached
+        self.collecting_since = time.time()  # unix seconds: start-up ends when collection starts (learn)
 
     # ------------------------------------------------------------------ save / load
     def state_dict(self) -> dict:
@@ -251,10 +252,10 @@ class Runner:
             return json.loads((run_dir / "summary.json").read_text())
         else:
             self.load(ckpt)
-            if self.pause_due():
-                print(f"{run_dir} is paused at {self.frames} frames (checkpoint.pause_at_frames): nothing to do")
+            if self.pause_due():  # already there (a kill after the pause point, or the same pause again)
+                print(f"{run_dir} is paused at {self.frames} frames (checkpoint.pause_at_frames): nothing to train")
                 self.paused = True
-                return json.loads((run_dir / "summary.json").read_text())
+                return self._finish()  # the summary and policy files of the checkpoint's state
         if cfg.logger.tensorboard:
             # torch's SummaryWriter, which TorchRL's TensorboardLogger wraps (importing it alone
             # saves TorchRL's record package's 0.4 s of start-up); events go to <run dir>/tb

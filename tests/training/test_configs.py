@@ -145,7 +145,7 @@ PAPER_COMMON = {
     "env.reward.position": 1.0,
     "env.reward.tilt": 0.5,
     "env.reward.yaw": 0.1,
-    "env.reward.crash_penalty": 100.0,
+    "env.reward.crash_penalty": 1200.0,
     "env.reward.scale": 0.01,
 }
 PAPER_PRESETS = {
@@ -200,6 +200,7 @@ PAPER_PRESETS = {
         "algo.ddpg.gamma": 0.99,
         "algo.ddpg.buffer_size": 1_000_000,
         "algo.ddpg.updates_per_batch": 1024,
+        "algo.ddpg.warmup_frames": 0,
         "optim.anneal_lr": False,
         "optim.max_grad_norm": 1e6,
     },

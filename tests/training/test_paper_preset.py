@@ -16,7 +16,7 @@ from tests.evaluation.scripts import evaluate
 from .helpers import TINY, compose_cfg
 
 # the tiny run under a paper preset (which sets its own batch, epochs and minibatches)
-PAPER_TINY = [*TINY, "loss.num_minibatches=4", "algo.ddpg.warmup_frames=256", "algo.ddpg.updates_per_batch=4"]
+PAPER_TINY = [*TINY, "loss.num_minibatches=4", "algo.ddpg.updates_per_batch=4"]
 
 
 @pytest.mark.parametrize("preset", ["paper", "paper_trpo", "paper_ddpg"])
