@@ -255,3 +255,18 @@ def test_a_sweep_runs_on_a_local_ray_cluster_and_survives_a_killed_job(tmp_path)
     assert (tmp_path / "report.rc").read_text().strip() == "0", (tmp_path / "report.out").read_text()[-2000:]
     report = (tmp_path / "report" / "report.md").read_text()
     assert "| jd |" in report and "| jd_css |" in report
+
+
+def test_a_paused_job_is_reported_paused_and_a_resumed_then_killed_one_unfinished(tmp_path):
+    """status.json and summary.json together: paused (checkpoint.pause_at_frames) stays paused; a
+    paused job resumed and killed (status running, its old paused summary) is unfinished; a
+    summary that is not paused means finished."""
+    from bfc.sweeps import read_runs
+
+    cases = {"a": ("paused", True), "b": ("running", True), "c": ("running", False), "d": ("finished", False)}
+    for name, (status, paused) in cases.items():
+        (tmp_path / name).mkdir()
+        (tmp_path / name / "status.json").write_text(json.dumps({"status": status}))
+        (tmp_path / name / "summary.json").write_text(json.dumps({"frames": 1, "paused": paused}))
+    states = {Path(r["run_dir"]).name: r["status"] for r in read_runs(tmp_path)}
+    assert states == {"a": "paused", "b": "unfinished", "c": "finished", "d": "finished"}

@@ -69,3 +69,22 @@ def test_regime_report_on_a_fake_sweep(tmp_path):
     assert (tmp_path / "out" / "learning_curves.png").stat().st_size > 10_000
     saved = json.loads((tmp_path / "out" / "table2.json").read_text())
     assert saved["css"][0]["test"]["protocol"] == 0.0
+
+
+def test_each_claims_verdict_follows_its_rule():
+    """Every branch of the claims' rules on hand-made means (success of the final policies)."""
+    from bfc.evaluation.regime import claims
+
+    def verdicts(means):
+        return [row[2].split(" (")[0] for row in claims(means, {}, {})]
+
+    jd = {"jd_css_tdts": 0.9, "jd_css": 0.6, "jd_tdts": 0.3, "jd": 0.2}
+    assert verdicts({**jd, "ppo": 0.0, "css": 0.05}) == ["holds", "holds", "not measured", "holds"]
+    assert verdicts({**jd, "ppo": 0.7}) == ["does not hold", "holds", "not measured", "does not hold"]
+    partly = {"jd_css_tdts": 0.05, "jd_css": 0.3, "jd_tdts": 0.0, "jd": 0.0, "ppo": 0.2}
+    assert verdicts(partly) == ["undecided", "does not hold", "not measured", "undecided"]
+    nothing = {v: 0.0 for v in ("jd_css_tdts", "jd_css", "jd_tdts", "jd", "ppo", "trpo jd_css_tdts")}
+    assert verdicts(nothing) == ["undecided", "undecided: none learned", "undecided: neither learned", "holds"]
+    trpo = {"jd_css_tdts": 0.9, "trpo jd_css_tdts": 0.95, "ppo": 0.0, "trpo ppo": 0.8}
+    assert verdicts(trpo)[2:] == ["does not hold", "holds in part"]
+    assert verdicts({"jd": 0.9}) == ["not measured"] * 4

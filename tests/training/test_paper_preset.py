@@ -146,22 +146,31 @@ def test_the_papers_reward_is_position_and_angle_terms_and_a_crash_penalty():
 
 
 def test_a_paused_run_resumes_to_the_same_weights_as_one_never_paused(tmp_path):
-    """checkpoint.pause_at_frames ends the process with a checkpoint and a summary marked paused;
-    the same command goes on to the end, bit for bit the run that never stopped (observation
-    statistics and the reward scale's state included)."""
+    """checkpoint.pause_at_frames ends the process with a checkpoint and a summary marked paused
+    (here off the checkpoint and evaluation grid of 1,024 frames); the same command goes on to the
+    end, bit for bit the run that never stopped: weights, observation statistics, the reward
+    scale's state, the optimiser."""
     overrides = ["+preset=paper", *PAPER_TINY]
     straight = train(compose_cfg(overrides), tmp_path / "straight")
-    paused = train(compose_cfg([*overrides, "checkpoint.pause_at_frames=1024"]), tmp_path / "staged")
-    assert paused["paused"] and paused["frames"] == 1024
-    again = train(compose_cfg([*overrides, "checkpoint.pause_at_frames=1024"]), tmp_path / "staged")
-    assert again["paused"] and again["frames"] == 1024  # nothing to do until the pause moves
+    paused = train(compose_cfg([*overrides, "checkpoint.pause_at_frames=1536"]), tmp_path / "staged")
+    assert paused["paused"] and paused["frames"] == 1536
+    assert read_policy(tmp_path / "staged" / "policy_last.pt").info["frames"] == 1536
+    again = train(compose_cfg([*overrides, "checkpoint.pause_at_frames=1536"]), tmp_path / "staged")
+    assert again["paused"] and again["frames"] == 1536  # nothing to do until the pause moves
     resumed = train(compose_cfg(overrides), tmp_path / "staged")
     assert not resumed["paused"] and resumed["frames"] == straight["frames"] == 2048
-    assert resumed["resumed_from"] == [1024]
-    a = read_policy(tmp_path / "straight" / "policy_last.pt").state_dict
-    b = read_policy(tmp_path / "staged" / "policy_last.pt").state_dict
-    for key in a:
-        torch.testing.assert_close(a[key], b[key], rtol=0, atol=0, msg=key)
+    assert resumed["resumed_from"] == [1536]
+    a, b = (torch.load(tmp_path / d / "checkpoints" / "last.pt", weights_only=True) for d in ("straight", "staged"))
+    for key in ("actor", "critic", "optimizer", "reward_scale"):
+        assert key in a
+    for part in ("actor", "critic"):
+        for name, value in a[part].items():
+            torch.testing.assert_close(value, b[part][name], rtol=0, atol=0, msg=f"{part}.{name}")
+    for k in ("ret", "mean", "var", "count"):
+        torch.testing.assert_close(a["reward_scale"][k], b["reward_scale"][k], rtol=0, atol=0)
+    assert float(a["reward_scale"]["count"]) > 2048 - 1  # every step's return went in
+    for sa, sb in zip(a["optimizer"]["state"].values(), b["optimizer"]["state"].values(), strict=True):
+        torch.testing.assert_close(sa["exp_avg"], sb["exp_avg"], rtol=0, atol=0)
 
 
 @pytest.mark.parametrize(
