@@ -8,6 +8,7 @@ Table 2 beside the paper's and bfc's, its learning curves and the claims table
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 from pathlib import Path
 
@@ -26,18 +27,19 @@ def main() -> None:
     parser.add_argument("--out", default="docs/report/paper_regime")
     parser.add_argument("--starts", type=int, default=100, help="test starts per set")
     args = parser.parse_args()
-    sweeps = [ROOT / s for s in args.sweeps if (ROOT / s).is_dir()]
+    os.chdir(ROOT)  # the report names its sweeps relative to the repository
+    sweeps = [Path(s) for s in args.sweeps if Path(s).is_dir()]
     if not sweeps:
         sys.exit(f"error: none of {', '.join(args.sweeps)} exists: run `bash bench/paper_regime.sh` first")
     header = (
-        f"Sweeps: {', '.join(f'`{s.relative_to(ROOT)}`' for s in sweeps)}, trained by `bash bench/paper_regime.sh`. "
+        f"Sweeps: {', '.join(f'`{s}`' for s in sweeps)}, trained by `bash bench/paper_regime.sh`. "
         f"Command: `{COMMAND}`."
     )
     path = write_regime_report(
         sweeps,
-        ROOT / args.out,
-        bfc_table2=ROOT / "docs/report/table2/table2.json",
-        bfc_algos=ROOT / "docs/report/algos/table2.json",
+        args.out,
+        bfc_table2="docs/report/table2/table2.json",
+        bfc_algos="docs/report/algos/table2.json",
         protocol=TestProtocolConfig(num_starts=args.starts),
         header=header,
     )
