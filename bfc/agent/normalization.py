@@ -3,9 +3,10 @@
 `ObservationNorm` is part of the policy network (its mean, variance and count are buffers in the
 actor's state_dict, so a policy file carries them and an export bakes them in): it maps an
 observation to clip((x - mean) / sqrt(var + eps), -clip, clip). The critic shares the same module.
-Training updates the statistics once per batch, after the update (`update`), so a batch is
-scored in the update with the statistics it was collected with (PPO's ratio starts at 1).
-Baselines updated them at every env step: the difference is a batch's lag (docs/training.md).
+Training updates the statistics once per batch, after the update (`update`), so a batch collected
+in the learner's process is scored with the statistics it was collected with (PPO's ratio starts
+at 1; with collector workers they lag one update, as the weights do). Baselines updated them at
+every env step (docs/training.md, "The paper preset").
 
 `RunningMeanStd` is the parallel-variance recursion (Chan et al.) both use; `RewardScale` is
 VecNormalize's reward half: rewards divided by the running std of each env's discounted return.
