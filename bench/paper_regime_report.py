@@ -32,8 +32,7 @@ def main() -> None:
     if not sweeps:
         sys.exit(f"error: none of {', '.join(args.sweeps)} exists: run `bash bench/paper_regime.sh` first")
     header = (
-        f"Sweeps: {', '.join(f'`{s}`' for s in sweeps)}, trained by `bash bench/paper_regime.sh`. "
-        f"Command: `{COMMAND}`."
+        f"Sweeps: {', '.join(f'`{s}`' for s in sweeps)}, trained by `bash bench/paper_regime.sh`. Command: `{COMMAND}`."
     )
     path = write_regime_report(
         sweeps,
