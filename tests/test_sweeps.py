@@ -93,7 +93,7 @@ def test_a_killed_sweep_resumes_by_running_again(tmp_path):
 def test_ctrl_c_stops_a_sweep_and_leaves_its_finished_runs_whole(tmp_path):
     """A sequential sweep of a short and a long job, interrupted (SIGINT, as Ctrl-C sends) while
     the long one trains: one line, exit status 130, the short job's run whole."""
-    args = [*TINY, "collector.total_frames=1024,16384", f"hydra.sweep.dir={tmp_path}"]
+    args = [*TINY, "collector.total_frames=1024,1048576", f"hydra.sweep.dir={tmp_path}"]
     process = subprocess.Popen(
         [sys.executable, "train.py", "-m", *args],
         cwd=ROOT,
