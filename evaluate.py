@@ -26,9 +26,15 @@ from omegaconf import OmegaConf
 
 import bfc.headless_gl  # noqa: F401  (before mujoco is imported: MUJOCO_GL=egl without a display)
 from bfc.cli import fail, precheck
-from bfc.config import EVALUATION_SUITES, ROTORPY_AIRFRAMES, SIMULATORS, EvaluateConfig, check_keys, check_protocol
-from bfc.evaluation import CONTROLLERS, fly, protocol_starts
-from bfc.evaluation.metrics import summarize
+from bfc.config import (
+    CONTROLLER_NAMES,
+    EVALUATION_SUITES,
+    ROTORPY_AIRFRAMES,
+    SIMULATORS,
+    EvaluateConfig,
+    check_keys,
+    check_protocol,
+)
 
 DEFAULTS = OmegaConf.structured(EvaluateConfig)
 SIM_NOTES = {
@@ -48,11 +54,12 @@ def check(cfg) -> None:
     check_protocol(cfg.eval)
     check_sim(cfg)
     check_video(cfg)
-    if cfg.controller is not None and cfg.controller not in CONTROLLERS:
-        raise ValueError(f"unknown controller {cfg.controller!r}; available: {', '.join(sorted(CONTROLLERS))}")
+    if cfg.controller is not None and cfg.controller not in CONTROLLER_NAMES:
+        raise ValueError(f"unknown controller {cfg.controller!r}; available: {', '.join(sorted(CONTROLLER_NAMES))}")
     if cfg.suite is None:
         if (cfg.policy is None) == (cfg.controller is None):
-            raise ValueError(f"give exactly one of policy=<path to policy.pt> or controller=<{'|'.join(CONTROLLERS)}>")
+            names = "|".join(CONTROLLER_NAMES)
+            raise ValueError(f"give exactly one of policy=<path to policy.pt> or controller=<{names}>")
         unused = [k for k in ("runs", "baselines") if _changed(cfg, k)]
         if unused:
             raise ValueError(f"{', '.join(unused)} only apply with suite=paper; a single evaluation does not use them")
@@ -75,9 +82,9 @@ def check(cfg) -> None:
         )
     if cfg.runs is not None and not Path(cfg.runs).is_dir():
         raise FileNotFoundError(f"runs={cfg.runs} is not a directory")
-    unknown = [b for b in cfg.baselines if b not in CONTROLLERS]
+    unknown = [b for b in cfg.baselines if b not in CONTROLLER_NAMES]
     if unknown:
-        raise ValueError(f"unknown baselines {unknown}; available: {sorted(CONTROLLERS)}")
+        raise ValueError(f"unknown baselines {unknown}; available: {sorted(CONTROLLER_NAMES)}")
 
 
 def check_sim(cfg) -> None:
@@ -148,6 +155,10 @@ def main(cfg) -> None:
     out = Path(HydraConfig.get().runtime.output_dir)
     try:
         check(cfg)
+        # torch, TorchRL and MuJoCo load only once the command line passed its checks
+        from bfc.evaluation import fly, protocol_starts
+        from bfc.evaluation.metrics import summarize
+
         if cfg.suite in ("robust", "hardware"):
             return run_robust(cfg, out)
         if cfg.suite is not None:

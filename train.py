@@ -24,7 +24,6 @@ import bfc.headless_gl  # noqa: F401  (before mujoco is imported: MUJOCO_GL=egl 
 from bfc.cli import fail, precheck
 from bfc.config import check_keys, validate  # importing bfc.config registers the schema Hydra composes with
 from bfc.sweeps import objective, write_status
-from bfc.training import train
 
 # What a resume may change from the command line (everything else is the run's own config)
 RESUME_OVERRIDES = ("checkpoint.pause_at_frames",)
@@ -61,6 +60,9 @@ def main(cfg) -> float:
         if cfg.resume:
             cfg, run_dir = resume_config(cfg)
         validate(cfg)
+        # torch, TorchRL and MuJoCo load only for a config that passed its checks: bad input fails at once
+        from bfc.training import train
+
         if multirun:
             write_status(run_dir, "running", pid=os.getpid())
         summary = train(cfg, run_dir)

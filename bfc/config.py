@@ -26,7 +26,7 @@ from hydra.core.config_store import ConfigStore
 from omegaconf import DictConfig, OmegaConf
 
 from bfc.checks import check
-from bfc.envs import AirframeParams, RandomizeParams, RewardParams, StartParams, TerminationParams
+from bfc.envs.params import AirframeParams, RandomizeParams, RewardParams, StartParams, TerminationParams
 
 CONF_DIR = Path(__file__).resolve().parents[1] / "conf"  # the repository's Hydra configs
 
@@ -34,6 +34,9 @@ ABLATIONS = ("ppo", "jd", "css", "tdts", "jd_css", "jd_tdts", "css_tdts", "jd_cs
 ALGORITHMS = ("ppo", "trpo", "ddpg")  # conf/algo/; bfc.training.learners.make_learner builds each
 EVALUATION_SUITES = ("paper", "robust", "hardware")  # evaluate.py suite=...
 SIMULATORS = ("mujoco", "rotorpy")  # evaluate.py sim=... (rotorpy: bfc/evaluation/rotorpy_sim.py)
+# evaluate.py controller= and baselines=: bfc.controllers.CONTROLLERS' names, here so that a bad
+# name fails before torch and OSQP load (tests/test_entry_points.py checks they agree)
+CONTROLLER_NAMES = ("lee", "lee_i", "mpc")
 ROTORPY_AIRFRAMES = ("bfc", "rotorpy")  # evaluate.py rotorpy_airframe=... (docs/evaluation.md)
 COLLECTORS = ("fused", "torchrl")
 OBJECTIVES = ("final_success_rate", "best_success_rate", "seconds_to_0.905")  # train.py's return value
@@ -130,6 +133,9 @@ class LatencyConfig:
 
     observation_steps: Any = 0
     action_steps: Any = 0
+    # the delays grow from none to these over curriculum.frames (bfc/collectors/curriculum.py);
+    # false: all of them from the first frame (with them from frame 0, seed 2 never learned to fly)
+    curriculum: bool = True
 
 
 @dataclass
@@ -144,6 +150,9 @@ class ModelConfig:
     # the integral of the position error as 3 more inputs: lets the policy remove a steady offset
     # (mass, thrust, wind) as a PID's integral term does (bfc/transforms/observation.py; extras=none: off)
     position_integral: bool = True
+    # the k commands before the previous one as 4 k more inputs: what a policy needs to predict
+    # through latency (bfc/transforms/observation.py; docs/training.md, "Latency in training")
+    command_history: int = 0
     observation: str = "heading"  # heading (22 numbers, bfc's) | odometry (18, the paper's; +preset=paper)
     squash: bool = False  # tanh on the actor's mean (algo=ddpg sets it: its actor climbs the critic's gradient)
     action_map: str = "thrust"  # thrust | speed: how the policy's [-1, 1] maps to motor speed (transforms/action.py)

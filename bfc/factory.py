@@ -157,8 +157,8 @@ def make_env(
 def _delays(latency, num_envs: int, hover_speed: float) -> list:
     """The latency transforms for a `latency` section: odometry first, then commands."""
     latency = _plain(latency) or {}
-    unknown = sorted(set(latency) - {"observation_steps", "action_steps"})
-    check(not unknown, "latency", "observation_steps and action_steps", unknown)
+    unknown = sorted(set(latency) - {"observation_steps", "action_steps", "curriculum"})
+    check(not unknown, "latency", "observation_steps, action_steps and curriculum", unknown)
     out = []
     if latency.get("observation_steps", 0) not in (0, [0, 0]):
         out.append(ObservationDelay(num_envs, latency["observation_steps"]))

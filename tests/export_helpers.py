@@ -58,14 +58,17 @@ def random_inputs(n, hover, max_speed, seed=0, spread=1.0):
     return odometry, goal, previous
 
 
-def torch_reference(policy_path, odometry, goal, previous, integral=None):
+def torch_reference(policy_path, odometry, goal, previous, integral=None, history=None):
     """What the env + the deterministic torch actor command: PolicyObservation.integrate and
-    .build, the actor's mean, MotorSpeedAction.to_command, the env's clip to [0, max]."""
+    .build, the actor's mean, MotorSpeedAction.to_command, the env's clip to [0, max]
+    (`history`: the older commands (n, k, 4) rad/s of a command-history policy)."""
     spec, net = load_policy(policy_path)
     action, observation = spec.make_action_map(), spec.make_observation_map(len(odometry))
     if spec.position_integral:
         integral = observation.integrate(integral, odometry, goal)
-    obs = observation.build(odometry, goal, action.to_action(previous).clamp(-1, 1), integral)
+    if spec.command_history:
+        history = action.to_action(history).clamp(-1, 1)
+    obs = observation.build(odometry, goal, action.to_action(previous).clamp(-1, 1), integral, history)
     with torch.no_grad():
         mean = net.mean(obs)
     return action.to_command(mean).clamp(0.0, action.max_speed), spec

@@ -236,3 +236,21 @@ def test_evaluate_honours_or_rejects_every_key(args, message):
     r = cli("evaluate.py", *args)
     assert r.returncode == 2, r.stderr[-2000:]
     assert message in r.stderr and "Traceback" not in r.stderr
+
+
+def test_checking_a_command_line_loads_no_torch_and_knows_every_controller():
+    """Bad input fails at once: the config, its checks and the CLI helpers import no torch, TorchRL
+    or MuJoCo, and the controller names they check against are the controllers' registry."""
+    r = fresh_python(
+        """
+        import sys
+        import bfc.cli, bfc.config, bfc.sweeps
+        print([m for m in ("torch", "torchrl", "mujoco", "tensordict") if m in sys.modules])
+        """
+    )
+    assert r.returncode == 0, r.stderr[-2000:]
+    assert r.stdout.strip() == "[]"
+    from bfc.config import CONTROLLER_NAMES
+    from bfc.controllers import CONTROLLERS
+
+    assert sorted(CONTROLLER_NAMES) == sorted(CONTROLLERS)

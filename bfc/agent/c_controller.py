@@ -28,13 +28,22 @@ _WRAPPER = """#include <stddef.h>
 #include "{header}"
 
 void bfc_lib_step_rows(int n, const float *odometry, const float *goal, const float *previous,
-        const float *integral_in, float *speeds, float *integral_out)
+        const float *integral_in, float *speeds, float *integral_out, const float *history_in, float *history_out)
 {{
     int r;
     for (r = 0; r < n; ++r) {{
         {p}_step(odometry + 18 * r, goal + 3 * r, previous + 4 * r, integral_in ? integral_in + 3 * r : NULL,
-            speeds + 4 * r, integral_out ? integral_out + 3 * r : NULL);
+            speeds + 4 * r, integral_out ? integral_out + 3 * r : NULL
+#if {P}_COMMAND_HISTORY > 0
+            , (const float (*)[4])(history_in + 4 * {P}_COMMAND_HISTORY * r),
+            (float (*)[4])(history_out + 4 * {P}_COMMAND_HISTORY * r)
+#endif
+        );
     }}
+#if {P}_COMMAND_HISTORY == 0
+    (void)history_in;
+    (void)history_out;
+#endif
 }}
 
 double bfc_lib_setting(int which)
@@ -45,6 +54,7 @@ double bfc_lib_setting(int which)
     case 2: return {P}_MAX_ROTOR_SPEED;
     case 3: return {P}_HAS_INTEGRAL;
     case 4: return {P}_OBSERVATION_SIZE;
+    case 6: return {P}_COMMAND_HISTORY;
     default: return {P}_MACS;
     }}
 }}
@@ -104,7 +114,7 @@ class CController(FedBackController):
         self._cleanup = weakref.finalize(self, shutil.rmtree, build_dir, True)
         self.library_path = build_library(self.path, build_dir, cc=cc)
         lib = ctypes.CDLL(str(self.library_path))
-        lib.bfc_lib_step_rows.argtypes = [ctypes.c_int] + [ctypes.c_void_p] * 6
+        lib.bfc_lib_step_rows.argtypes = [ctypes.c_int] + [ctypes.c_void_p] * 8
         lib.bfc_lib_step_rows.restype = None
         lib.bfc_lib_setting.argtypes = [ctypes.c_int]
         lib.bfc_lib_setting.restype = ctypes.c_double
@@ -113,6 +123,7 @@ class CController(FedBackController):
         self.control_hz = lib.bfc_lib_setting(0)
         self.hover_speed = lib.bfc_lib_setting(1)
         self.max_rotor_speed = lib.bfc_lib_setting(2)
+        self.command_history = int(lib.bfc_lib_setting(6))
         self.metadata = {
             "control_hz": self.control_hz,
             "hover_speed": self.hover_speed,
@@ -120,12 +131,14 @@ class CController(FedBackController):
             "position_integral": bool(lib.bfc_lib_setting(3)),
             "observation_size": int(lib.bfc_lib_setting(4)),
             "macs": int(lib.bfc_lib_setting(5)),
+            "command_history": int(lib.bfc_lib_setting(6)),
             "action_map": lib.bfc_lib_action_map().decode(),
         }
 
-    def step(self, odometry: np.ndarray, goal: np.ndarray, previous: np.ndarray, integral: np.ndarray | None = None):
+    def step(self, odometry: np.ndarray, goal: np.ndarray, previous: np.ndarray, integral=None, history=None):
         """One control step for n drones, as the ONNX graph: (motor speeds (n, 4), the next
-        integral (n, 3), or None for a policy without one). Plain float32 arrays in and out."""
+        integral (n, 3), or None for a policy without one). Plain float32 arrays in and out;
+        `history` (n, k, 4) rad/s for a policy with a command history (hover when None)."""
         odometry = np.ascontiguousarray(odometry, dtype=np.float32)
         n = odometry.shape[0]
         goal = np.ascontiguousarray(np.broadcast_to(goal, (n, 3)), dtype=np.float32)
@@ -139,6 +152,12 @@ class CController(FedBackController):
             integral_out = np.empty((n, 3), dtype=np.float32)
         else:
             integral = None
+        history_in = history_out = None
+        if self.command_history:
+            shape = (n, self.command_history, 4)
+            history_in = np.full(shape, self.hover_speed, np.float32) if history is None else history
+            history_in = np.ascontiguousarray(history_in, dtype=np.float32).reshape(shape)
+            history_out = np.empty(shape, dtype=np.float32)
         self._lib.bfc_lib_step_rows(
             n,
             _pointer(odometry),
@@ -147,5 +166,7 @@ class CController(FedBackController):
             _pointer(integral),
             _pointer(speeds),
             _pointer(integral_out),
+            _pointer(history_in),
+            _pointer(history_out),
         )
         return speeds, integral_out

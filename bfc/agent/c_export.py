@@ -110,7 +110,7 @@ def _observation_code(spec: PolicySpec, obs: PolicyObservation) -> str:
             "    for (k = 3; k < 18; ++k) obs[k] = odometry[k];",
         ]
         if not integral:
-            return "\n".join([*lines, "    (void)integral;"])
+            return "\n".join([*lines, "    (void)integral;", "    (void)history_action;"])
         return "\n".join(
             [
                 "    const float c = cosf(odometry[11]), s = sinf(odometry[11]); /* the yaw */",
@@ -119,6 +119,7 @@ def _observation_code(spec: PolicySpec, obs: PolicyObservation) -> str:
                 f"    obs[18] = (c * integral[0] + s * integral[1]) * {P}_INTEGRAL_SCALE;",
                 f"    obs[19] = (c * integral[1] - s * integral[0]) * {P}_INTEGRAL_SCALE;",
                 f"    obs[20] = integral[2] * {P}_INTEGRAL_SCALE;",
+                "    (void)history_action;",
             ]
         )
     lines = [
@@ -160,8 +161,17 @@ def _observation_code(spec: PolicySpec, obs: PolicyObservation) -> str:
             f"    obs[{at + 1}] = (c * integral[1] - s * integral[0]) * {P}_INTEGRAL_SCALE;",
             f"    obs[{at + 2}] = integral[2] * {P}_INTEGRAL_SCALE;",
         ]
+        at += 3
     else:
         lines.append("    (void)integral;")
+    if spec.command_history:
+        lines += [
+            f"    /* {at}:{at + 4 * spec.command_history} the commands before the previous one, newest first, "
+            "in the policy's action space */",
+            f"    for (k = 0; k < 4 * {P}_COMMAND_HISTORY; ++k) obs[{at} + k] = history_action[k];",
+        ]
+    else:
+        lines.append("    (void)history_action;")
     return "\n".join(lines)
 
 
@@ -198,7 +208,12 @@ def generate_c(spec: PolicySpec, net, source: str = "policy.pt", name: str = "po
     macs = sum(w.size for w, _, _, _ in layers)
     sizes = " -> ".join([str(obs.size)] + [str(w) for w in widths] + ["4"])
     integral = spec.position_integral
+    K = spec.command_history
     to_action, to_command = _action_code(action)
+    # the history's parameters: in the signature only for a policy that has one
+    history_params = ", history_in, history_out" if K else ""
+    history_decl_in = f",\n        const float history_in[{K}][4]" if K else ""
+    history_decl_out = f", float history_out[{K}][4]" if K else ""
 
     odometry_note = "" if obs.kind == "odometry" or spec.include_acceleration else " (6:9 and 15:18 unused here)"
     if integral:
@@ -221,6 +236,16 @@ def generate_c(spec: PolicySpec, net, source: str = "policy.pt", name: str = "po
     parts = [f"{obs.kind} observation, {obs.size} numbers"]
     parts += ["with accelerations"] if spec.include_acceleration and obs.kind == "heading" else []
     parts += ["with the position-error integral"] if integral else []
+    parts += [f"with the {K} commands before the previous one"] if K else []
+    history_lines = (
+        [
+            f" *   history_in[{K}][4]  rad/s: the commands before previous_motor_speeds, newest first (the",
+            f" *                  history_out of the previous step), {P}_HOVER_SPEED after a reset",
+            f" *   history_out[{K}][4]  the history after this step, to pass back next time",
+        ]
+        if K
+        else []
+    )
     comment = [
         f"/* {name}: the bfc policy `{source}` as C99 code ({C_FORMAT}, from a {POLICY_FORMAT} policy file),",
         " * written by `python -m bfc.export <policy.pt> <out>.h` (bfc.export.export_c). Do not edit: export again.",
@@ -233,7 +258,9 @@ def generate_c(spec: PolicySpec, net, source: str = "policy.pt", name: str = "po
         + f" ({macs} multiply-adds)",
         f" *   action map   {action.action_map}; the output clipped to [0, {P}_MAX_ROTOR_SPEED]",
         " *",
-        f" * {p}_step(odometry, goal, previous_motor_speeds, integral_in, motor_speeds_out, integral_out)",
+        f" * {p}_step(odometry, goal, previous_motor_speeds, integral_in, motor_speeds_out, integral_out"
+        + history_params
+        + ")",
         " * Inputs (float, SI units, world frame with z up unless said):",
         " *   odometry[18]   0:3 position (m), 3:6 linear velocity (m/s), 6:9 linear acceleration (m/s^2),",
         " *                  9:12 roll, pitch, yaw (rad, ZYX), 12:15 angular velocity (rad/s, body),",
@@ -242,6 +269,7 @@ def generate_c(spec: PolicySpec, net, source: str = "policy.pt", name: str = "po
         " *   previous_motor_speeds[4]  rad/s: the motor_speeds_out of the previous control step,",
         f" *                  {P}_HOVER_SPEED after a reset (take-off, a new flight)",
         *integral_lines,
+        *history_lines,
         " * Outputs may alias inputs. Call it at " + f"{P}_CONTROL_HZ: the policy was trained at that rate",
         " * (and the integral integrates at it)." if integral else " * and flies at that rate only.",
         f" * Or keep that state in a {p}_state: {p}_reset(&state) at a reset, then",
@@ -271,6 +299,7 @@ def generate_c(spec: PolicySpec, net, source: str = "policy.pt", name: str = "po
 #define {P}_HOVER_SPEED {c_float(action.hover_speed)} /* rad/s: previous_motor_speeds after a reset */
 #define {P}_MAX_ROTOR_SPEED {c_float(action.max_speed)} /* rad/s: the top of the output range */
 #define {P}_HAS_INTEGRAL {int(integral)} /* 1: integral_in / integral_out carry the position-error integral */
+#define {P}_COMMAND_HISTORY {K} /* > 0: history_in / history_out carry that many older commands */
 #define {P}_ACCELERATION_USED {int(spec.include_acceleration and obs.kind == "heading")}
 #define {P}_ACTION_MAP "{action.action_map}"
 #define {P}_OBSERVATION "{obs.kind}"
@@ -339,6 +368,25 @@ def generate_c(spec: PolicySpec, net, source: str = "policy.pt", name: str = "po
             "    integral[0] = integral[1] = integral[2] = 0.0f;"
         )
         store_code = "    (void)integral_out;"
+    if K:
+        history_code = (
+            f"    float history_action[4 * {K}], previous_copy[4];\n"
+            "    /* the older commands in the policy's action space, clipped to [-1, 1] */\n"
+            f"    for (k = 0; k < 4 * {K}; ++k) history_action[k] = "
+            f"{p}_clamp({p}_to_action(history_in[k / 4][k % 4]), -1.0f, 1.0f);\n"
+            "    for (k = 0; k < 4; ++k) previous_copy[k] = previous_motor_speeds[k];"
+        )
+        # newest first; from the oldest end down, so history_out may alias history_in
+        store_code += (
+            f"\n    for (k = 4 * {K} - 1; k >= 4; --k) history_out[k / 4][k % 4] = history_in[k / 4 - 1][k % 4];"
+            "\n    for (k = 0; k < 4; ++k) history_out[0][k] = previous_copy[k];"
+        )
+        history_arg = "history_action"
+        state_field = f"\n    float history[{K}][4];          /* rad/s: the commands before it, newest first */"
+        reset_history = f"\n    for (k = 0; k < 4 * {K}; ++k) state->history[k / 4][k % 4] = {P}_HOVER_SPEED;"
+        update_history = ", state->history, state->history"
+    else:
+        history_code, history_arg, state_field, reset_history, update_history = "", "NULL", "", "", ""
 
     code = f"""/* ---- helpers ---- */
 
@@ -393,7 +441,7 @@ static inline void {p}_integrate(const float integral_in[3], const float odometr
 /* the network's input (PolicyObservation.build): previous_action in [-1, 1]^4, integral (m s,
  * world frame) already integrated for this step */
 static inline void {p}_observation(const float odometry[18], const float goal[3], const float previous_action[4],
-        const float integral[3], float obs[{P}_OBSERVATION_SIZE])
+        const float integral[3], const float *history_action, float obs[{P}_OBSERVATION_SIZE])
 {{
 {_observation_code(spec, obs)}
 }}
@@ -410,14 +458,15 @@ static inline void {p}_mean(const float obs[{P}_OBSERVATION_SIZE], float action[
 /* ---- the policy: one control step ---- */
 
 static inline void {p}_step(const float odometry[18], const float goal[3], const float previous_motor_speeds[4],
-        const float integral_in[3], float motor_speeds_out[4], float integral_out[3])
+        const float integral_in[3], float motor_speeds_out[4], float integral_out[3]{history_decl_in}{history_decl_out})
 {{
     float previous_action[4], integral[3], obs[{P}_OBSERVATION_SIZE], action[4];
     int k;
+{history_code}
     /* the previous command in the policy's action space, clipped to [-1, 1] */
     for (k = 0; k < 4; ++k) previous_action[k] = {p}_clamp({p}_to_action(previous_motor_speeds[k]), -1.0f, 1.0f);
 {integral_code}
-    {p}_observation(odometry, goal, previous_action, integral, obs);
+    {p}_observation(odometry, goal, previous_action, integral, {history_arg}, obs);
     {p}_mean(obs, action);
     /* the motor commands, clipped to [0, max] as the env clips them */
     for (k = 0; k < 4; ++k) motor_speeds_out[k] = {p}_clamp({p}_to_command(action[k]), 0.0f, {P}_MAX_ROTOR_SPEED);
@@ -428,7 +477,7 @@ static inline void {p}_step(const float odometry[18], const float goal[3], const
 
 typedef struct {p}_state {{
     float previous_motor_speeds[4]; /* rad/s: the last command */
-    float integral[3];              /* m s, world frame: the position-error integral (zeros if unused) */
+    float integral[3];              /* m s, world frame: the position-error integral (zeros if unused) */{state_field}
 }} {p}_state;
 
 /* after a reset (take-off, a new flight): hover as the previous command, a zero integral */
@@ -436,7 +485,7 @@ static inline void {p}_reset({p}_state *state)
 {{
     int k;
     for (k = 0; k < 4; ++k) state->previous_motor_speeds[k] = {P}_HOVER_SPEED;
-    for (k = 0; k < 3; ++k) state->integral[k] = 0.0f;
+    for (k = 0; k < 3; ++k) state->integral[k] = 0.0f;{reset_history}
 }}
 
 /* one control step that feeds its own command (and integral) back through `state` */
@@ -445,7 +494,7 @@ static inline void {p}_update({p}_state *state, const float odometry[18], const 
 {{
     int k;
     {p}_step(odometry, goal, state->previous_motor_speeds, state->integral, state->previous_motor_speeds,
-        state->integral);
+        state->integral{update_history});
     for (k = 0; k < 4; ++k) motor_speeds_out[k] = state->previous_motor_speeds[k];
 }}
 

@@ -11,8 +11,13 @@ action maps inside it, so a deployer feeds it raw sensor numbers and gets motor 
                                             with `model.position_integral`; the graph's own
                                             `next_position_error_integral` of the previous step,
                                             zeros after a reset
+             motor_speed_history    (N, k, 4) float32, rad/s: only for policies trained with
+                                            `model.command_history=k`: the k commands before
+                                            previous_motor_speeds, newest first (the graph's own
+                                            `next_motor_speed_history`), the hover speed after a reset
     output   motor_speeds           (N, 4)  float32, rad/s, clipped to [0, max_rotor_speed]
              next_position_error_integral (N, 3): with the integral input only
+             next_motor_speed_history (N, k, 4): with the history input only
 
 The batch axis N is dynamic. The model's metadata_props record the control rate (`control_hz`),
 `hover_speed`, `max_rotor_speed`, `action_map` and the policy format; see docs/export.md.
@@ -40,6 +45,7 @@ ONNX_FORMAT = "bfc-onnx-v1"
 INPUTS = ("odometry", "goal", "previous_motor_speeds")
 OUTPUT = "motor_speeds"
 INTEGRAL_INPUT, INTEGRAL_OUTPUT = "position_error_integral", "next_position_error_integral"
+HISTORY_INPUT, HISTORY_OUTPUT = "motor_speed_history", "next_motor_speed_history"
 ODOMETRY_LAYOUT = (
     "0:3 position (m, world), 3:6 linear velocity (m/s, world), 6:9 linear acceleration (m/s^2, world), "
     "9:12 roll, pitch, yaw (rad, ZYX), 12:15 angular velocity (rad/s, body), "
@@ -50,8 +56,9 @@ _INSTALL_HINT = 'ONNX export needs the onnx extra: pip install -e ".[onnx]"'
 
 
 class PolicyExportModule(nn.Module):
-    """(odometry, goal, previous_motor_speeds) -> motor_speeds (rad/s): the deterministic actor
-    with the env's observation map before it and its action map and motor clip after it."""
+    """(odometry, goal, previous_motor_speeds[, integral][, history]) -> motor_speeds (rad/s)
+    [, next integral][, next history]: the deterministic actor with the env's observation map
+    before it and its action map and motor clip after it."""
 
     def __init__(self, net: GaussianActor, observation: PolicyObservation, action: MotorSpeedAction):
         super().__init__()
@@ -60,6 +67,8 @@ class PolicyExportModule(nn.Module):
         # (a transform's buffers and extra state, such as a generator, do not).
         self.build_observation = observation.build
         self.integrate = observation.integrate if observation.position_integral else None
+        self.command_history = observation.command_history
+        self.shift = observation.shift
         self.to_action = action.to_action
         self.to_command = action.to_command
         self.max_speed = action.max_speed
@@ -69,16 +78,23 @@ class PolicyExportModule(nn.Module):
         odometry: torch.Tensor,
         goal: torch.Tensor,
         previous_motor_speeds: torch.Tensor,
-        position_error_integral: torch.Tensor | None = None,
+        *state: torch.Tensor,
     ):
-        # exactly what PolicyObservation._step keeps as the previous action (and integral)
+        # exactly what PolicyObservation._step keeps as the previous action (and integral, history)
+        state = list(state)
         last_action = self.to_action(previous_motor_speeds).clamp(-1, 1)
-        integral = None
+        integral = history = None
         if self.integrate is not None:
-            integral = self.integrate(position_error_integral, odometry, goal)
-        loc = self.net.mean(self.build_observation(odometry, goal, last_action, integral))
+            integral = self.integrate(state.pop(0), odometry, goal)
+        if self.command_history:
+            speeds_before = state.pop(0)
+            history = self.to_action(speeds_before).clamp(-1, 1)
+        loc = self.net.mean(self.build_observation(odometry, goal, last_action, integral, history))
         speeds = self.to_command(loc).clamp(0.0, self.max_speed)  # the env's clip (QuadrotorEnv._step)
-        return speeds if integral is None else (speeds, integral)
+        outputs = [speeds] + ([integral] if integral is not None else [])
+        if history is not None:
+            outputs.append(self.shift(speeds_before, previous_motor_speeds))
+        return outputs[0] if len(outputs) == 1 else tuple(outputs)
 
 
 def export_module(policy_path) -> tuple[PolicyExportModule, PolicySpec]:
@@ -122,6 +138,10 @@ def export_onnx(policy_path, onnx_path, opset: int | None = None) -> Path:
         example += (torch.zeros(n, 3),)
         inputs.append(INTEGRAL_INPUT)
         outputs.append(INTEGRAL_OUTPUT)
+    if spec.command_history:
+        example += (torch.full((n, spec.command_history, 4), airframe.hover_speed),)
+        inputs.append(HISTORY_INPUT)
+        outputs.append(HISTORY_OUTPUT)
     buffer = io.BytesIO()
     with warnings.catch_warnings():  # the TorchScript exporter is deprecated in favour of dynamo (onnxscript)
         warnings.simplefilter("ignore")
@@ -146,6 +166,11 @@ def export_onnx(policy_path, onnx_path, opset: int | None = None) -> Path:
             if spec.position_integral
             else ""
         )
+        + (
+            "; feed back next_motor_speed_history as motor_speed_history, hover_speed after a reset"
+            if spec.command_history
+            else ""
+        )
         + ". See docs/export.md."
     )
     metadata = {
@@ -157,6 +182,7 @@ def export_onnx(policy_path, onnx_path, opset: int | None = None) -> Path:
         "action_map": spec.action_map,
         "include_acceleration": str(spec.include_acceleration).lower(),
         "position_integral": str(spec.position_integral).lower(),
+        "command_history": str(spec.command_history),
         "observation": spec.observation,
         "odometry_layout": ODOMETRY_LAYOUT,
         "motor_order": MOTOR_ORDER,
@@ -194,6 +220,7 @@ def _parse_metadata(meta: dict, onnx_path) -> dict:
         out[key] = float(meta[key])
     out["include_acceleration"] = meta.get("include_acceleration") == "true"
     out["position_integral"] = meta.get("position_integral") == "true"
+    out["command_history"] = int(meta.get("command_history", "0"))
     return out
 
 
@@ -221,12 +248,15 @@ class OnnxController(FedBackController):
         self.control_hz = self.metadata["control_hz"]
         self.hover_speed = self.metadata["hover_speed"]
         self.max_rotor_speed = self.metadata["max_rotor_speed"]
+        self.command_history = self.metadata["command_history"]
 
-    def step(self, odometry, goal, previous, integral):
+    def step(self, odometry, goal, previous, integral, history):
         feeds = {"odometry": odometry, "goal": goal, "previous_motor_speeds": previous}
+        outputs = [OUTPUT]
         if self.metadata["position_integral"]:
             feeds[INTEGRAL_INPUT] = integral
-            speeds, next_integral = self.session.run([OUTPUT, INTEGRAL_OUTPUT], feeds)
-            return speeds, next_integral
-        (speeds,) = self.session.run([OUTPUT], feeds)
-        return speeds, None
+            outputs.append(INTEGRAL_OUTPUT)
+        if self.command_history:
+            feeds[HISTORY_INPUT] = history
+        speeds, *rest = self.session.run(outputs, feeds)
+        return speeds, (rest[0] if rest else None)

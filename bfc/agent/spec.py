@@ -16,6 +16,7 @@ from bfc.agent.actor import ACTIVATIONS, GaussianActor
 from bfc.checks import check
 from bfc.envs import AirframeParams
 from bfc.transforms import ACTION_MAPS, OBSERVATIONS, MotorSpeedAction, PolicyObservation, observation_size
+from bfc.transforms.observation import check_history
 
 
 @dataclass
@@ -23,6 +24,7 @@ class PolicySpec:
     observation: str = "heading"  # heading (bfc's 22 numbers) | odometry (the paper's 18)
     include_acceleration: bool = False
     position_integral: bool = False  # the position-error integral as 3 more inputs
+    command_history: int = 0  # the k commands before the previous one as 4 k more inputs
     action_map: str = "thrust"  # thrust | speed (bfc/transforms/action.py)
     hidden: tuple[int, ...] = (128, 128)  # the actor's hidden layers
     activation: str = "relu"
@@ -50,6 +52,13 @@ class PolicySpec:
             bool(self.include_acceleration),
             bool(self.position_integral),
         )
+        check_history(self.command_history)
+        check(
+            self.command_history == 0 or self.observation == "heading",
+            "model.command_history",
+            "0 with model.observation=odometry (the paper's observation has no previous command)",
+            self.command_history,
+        )
         self.squash, self.control_hz, self.init_std = bool(self.squash), float(self.control_hz), float(self.init_std)
         self.normalize_observation = bool(self.normalize_observation)
         self.airframe = dict(self.airframe or {})
@@ -64,6 +73,7 @@ class PolicySpec:
             observation=m.observation,
             include_acceleration=m.include_acceleration,
             position_integral=m.position_integral,
+            command_history=m.command_history,
             action_map=m.action_map,
             hidden=tuple(int(h) for h in m.actor_hidden),
             activation=m.activation,
@@ -94,7 +104,9 @@ class PolicySpec:
 
     @property
     def observation_size(self) -> int:
-        return observation_size(self.observation, self.include_acceleration, self.position_integral)
+        return observation_size(
+            self.observation, self.include_acceleration, self.position_integral, self.command_history
+        )
 
     def make_net(self) -> GaussianActor:
         """A new (untrained) network of this shape."""
@@ -117,4 +129,5 @@ class PolicySpec:
             position_integral=self.position_integral,
             dt=1.0 / self.control_hz if dt is None else dt,
             kind=self.observation,
+            command_history=self.command_history,
         )

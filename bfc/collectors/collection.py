@@ -20,7 +20,13 @@ from tensordict import TensorDict
 from bfc.collectors.collector import make_collector
 from bfc.collectors.curriculum import Curriculum
 from bfc.factory import find_transform, make_env
-from bfc.transforms import ControlledStartingState, JumpingDistribution, TimeDependentTerminalState
+from bfc.transforms import (
+    ActionDelay,
+    ControlledStartingState,
+    JumpingDistribution,
+    ObservationDelay,
+    TimeDependentTerminalState,
+)
 
 
 def make_collection(cfg, net, total_frames: int):
@@ -42,7 +48,8 @@ class LocalCollection:
         self.jd = find_transform(self.env, JumpingDistribution)
         self.css = find_transform(self.env, ControlledStartingState)
         self.tdts = find_transform(self.env, TimeDependentTerminalState)
-        self.curriculum = Curriculum(cfg, self.env, self.jd)
+        delays = [t for t in (find_transform(self.env, c) for c in (ObservationDelay, ActionDelay)) if t is not None]
+        self.curriculum = Curriculum(cfg, self.env, self.jd, delays)
         self.frames = 0
         self.curriculum.apply(0)  # before the collector's first reset
         fpb = int(cfg.collector.frames_per_batch)

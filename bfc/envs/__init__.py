@@ -1,14 +1,10 @@
-"""The MuJoCo Hummingbird as a batched TorchRL env."""
+"""The MuJoCo Hummingbird as a batched TorchRL env.
 
-from bfc.envs.params import AirframeParams
-from bfc.envs.quadrotor import (
-    REFERENCE_PHYSICS_DT,
-    QuadrotorEnv,
-    RandomizeParams,
-    RewardParams,
-    StartParams,
-    TerminationParams,
-)
+The parameter dataclasses import nothing heavy; `QuadrotorEnv` (torch, TorchRL, MuJoCo) is
+imported on first use, so that a config can be checked before those load (bfc.config).
+"""
+
+from bfc.envs.params import AirframeParams, RandomizeParams, RewardParams, StartParams, TerminationParams
 
 __all__ = [
     "REFERENCE_PHYSICS_DT",
@@ -19,3 +15,11 @@ __all__ = [
     "StartParams",
     "TerminationParams",
 ]
+
+
+def __getattr__(name: str):
+    if name in ("QuadrotorEnv", "REFERENCE_PHYSICS_DT"):
+        from bfc.envs import quadrotor
+
+        return getattr(quadrotor, name)
+    raise AttributeError(f"module 'bfc.envs' has no attribute {name!r}")

@@ -16,6 +16,9 @@ holds it and a resumed run goes on bit-identically.
 
 `steps` is a number, or a (low, high) range from which each env draws its delay at every reset
 (uniform over the integers, both ends included): domain randomisation for training.
+`range_scale` (1: off) shrinks both ends towards 0 (each rounded to the nearest step): the
+curriculum (`latency.curriculum`) grows the delays in as the policy learns to fly, since delays
+from the first frame can keep a run from ever learning (bfc/collectors/curriculum.py).
 """
 
 from __future__ import annotations
@@ -48,13 +51,22 @@ class _Delay(BatchedTransform):
         self.register_buffer("queue", torch.zeros(num_envs, self.high + 1, width))  # newest first
         self.register_buffer("delay", torch.full((num_envs,), self.low, dtype=torch.long))
         self._rows = torch.arange(num_envs)
+        self.range_scale = 1.0  # set per batch by the curriculum from the frame count (not state)
+
+    def bounds(self) -> tuple[int, int]:
+        """The delays drawn at a reset now: (low, high) scaled by `range_scale`, rounded."""
+        s = min(max(float(self.range_scale), 0.0), 1.0)
+        return int(self.low * s + 0.5), int(self.high * s + 0.5)
 
     def restart(self, mask: torch.Tensor, value: torch.Tensor) -> None:
         """The envs in `mask` forget their past: every queued value is `value` (n, width)."""
         self.queue[mask] = value[mask].unsqueeze(1).to(self.queue.dtype)
-        if self.high > self.low:
-            drawn = self.low + (self.rand(self.num_envs) * (self.high - self.low + 1)).long().clamp(max=self.high)
+        low, high = self.bounds()
+        if self.high > self.low:  # a range draws for every reset (the same stream at any scale)
+            drawn = low + (self.rand(self.num_envs) * (high - low + 1)).long().clamp(max=high)
             self.delay[mask] = drawn[mask]
+        else:
+            self.delay[mask] = low
 
     def push(self, value: torch.Tensor) -> torch.Tensor:
         """Queue this step's `value` (n, width) and return each env's value of `delay` steps ago."""

@@ -19,6 +19,12 @@ as the integral term of a PID does. It integrates only within `integral_radius` 
 wind-up while flying in from afar) and is clipped to +-`integral_limit` (m s); it restarts with
 each episode, from the error of the episode's first odometry (so at every step it includes the
 current error: the same recursion the exported policies run, bfc/agent/onnx.py).
+
+`command_history=k` adds the k commands before the previous one (4 k more inputs, newest first, in
+the policy's action space, hover after a reset): with odometry that arrives late or commands that
+apply late, what the drone does now depends on commands the policy gave several steps ago; a
+memoryless policy cannot tell which delay it flies under, one that sees its recent commands can
+predict through it (the exports carry the history as state, as they carry the integral).
 """
 
 from __future__ import annotations
@@ -33,11 +39,19 @@ from bfc.transforms._base import BatchedTransform, check, reset_mask
 OBSERVATIONS = ("heading", "odometry")
 
 
-def observation_size(kind: str = "heading", include_acceleration: bool = False, position_integral: bool = False) -> int:
+def observation_size(
+    kind: str = "heading", include_acceleration: bool = False, position_integral: bool = False, command_history: int = 0
+) -> int:
     """How many numbers the observation of this kind has (the policy network's input size)."""
     check(kind in OBSERVATIONS, "model.observation", " or ".join(OBSERVATIONS), kind)
+    check_history(command_history)
     base = 18 if kind == "odometry" else 22 + (6 if include_acceleration else 0)
-    return base + (3 if position_integral else 0)
+    return base + (3 if position_integral else 0) + 4 * command_history
+
+
+def check_history(command_history) -> None:
+    whole = isinstance(command_history, int) and not isinstance(command_history, bool)
+    check(whole and 0 <= command_history <= 50, "model.command_history", "a whole number 0-50", command_history)
 
 
 def to_heading_frame(v: torch.Tensor, yaw: torch.Tensor, cos_sin=None) -> torch.Tensor:
@@ -69,6 +83,7 @@ class PolicyObservation(BatchedTransform):
         integral_limit: float = 0.5,
         integral_scale: float = 4.0,
         kind: str = "heading",
+        command_history: int = 0,
     ):
         super().__init__(num_envs, in_keys=[keys.ODOMETRY, keys.GOAL], out_keys=[keys.OBSERVATION])
         check(hover_speed > 0, "hover_speed", "> 0", hover_speed)
@@ -84,11 +99,14 @@ class PolicyObservation(BatchedTransform):
         self.dt, self.integral_radius = float(dt), float(integral_radius)
         self.integral_limit, self.integral_scale = float(integral_limit), float(integral_scale)
         self.kind = kind
-        self.size = observation_size(kind, include_acceleration, position_integral)
+        self.size = observation_size(kind, include_acceleration, position_integral, command_history)
+        self.command_history = int(command_history)
         # the previous command is shown in the policy's own action space (MotorSpeedAction.to_action)
         self.command_to_action = command_to_action or (lambda command: command / self.hover_speed - 1.0)
         self.register_buffer("last_action", torch.zeros(num_envs, 4))
         self.register_buffer("integral", torch.zeros(num_envs, 3))  # world frame, m s
+        # the commands before the previous one, newest first (policy's action space)
+        self.register_buffer("history", torch.zeros(num_envs, self.command_history, 4))
 
     def integrate(self, integral: torch.Tensor, odometry: torch.Tensor, goal: torch.Tensor) -> torch.Tensor:
         """The position-error integral after one more control step (world frame)."""
@@ -102,14 +120,18 @@ class PolicyObservation(BatchedTransform):
         goal: torch.Tensor,
         last_action: torch.Tensor,
         integral: torch.Tensor | None = None,
+        history: torch.Tensor | None = None,
     ) -> torch.Tensor:
         if self.position_integral and integral is None:
             raise ValueError("this observation has a position_integral: pass the integral (N, 3)")
+        if self.command_history and history is None:
+            raise ValueError(f"this observation has a command_history: pass the history (N, {self.command_history}, 4)")
+        older = [history.flatten(-2)] if self.command_history else []
         if self.kind == "odometry":
             parts = [odometry[..., 0:3] - goal, odometry[..., 3:18]]
             if self.position_integral:
                 parts.append(to_heading_frame(integral, odometry[..., 11]) * self.integral_scale)
-            return torch.cat(parts, -1)
+            return torch.cat(parts + older, -1)
         # Few, wide ops (this runs once per control step on the whole batch, and a torch op costs
         # about as much on 100 rows as on 2,000): the trigonometry of roll, pitch and yaw at once,
         # and the goal-relative position, the velocity and the integral turned together.
@@ -132,15 +154,21 @@ class PolicyObservation(BatchedTransform):
             parts += [odometry[..., 6:9] * self.acceleration_scale, odometry[..., 15:18] * self.acceleration_scale]
         if self.position_integral:
             parts.append(turned[..., 2, :] * self.integral_scale)
-        return torch.cat(parts, -1)
+        return torch.cat(parts + older, -1)
+
+    def shift(self, history: torch.Tensor, last_action: torch.Tensor) -> torch.Tensor:
+        """The history one step on: the previous action becomes its newest entry."""
+        return torch.cat([last_action.unsqueeze(-2), history[..., :-1, :]], -2)
 
     def advance(self, command: torch.Tensor, odometry: torch.Tensor, goal: torch.Tensor) -> torch.Tensor:
         """One control step: remember the command just flown (N, 4, rad/s) as the previous action,
         integrate the position error, and return the observation (N, size) of the new odometry."""
+        if self.command_history:
+            self.history.copy_(self.shift(self.history, self.last_action))
         self.last_action.copy_(self.command_to_action(command).clamp(-1, 1))
         if self.position_integral:
             self.integral.copy_(self.integrate(self.integral, odometry, goal))
-        return self.build(odometry, goal, self.last_action, self.integral)
+        return self.build(odometry, goal, self.last_action, self.integral, self.history)
 
     def restart(self, mask: torch.Tensor, odometry: torch.Tensor, goal: torch.Tensor) -> torch.Tensor:
         """The envs in `mask` (N,) start a new episode: no previous action, and the integral of
@@ -149,14 +177,15 @@ class PolicyObservation(BatchedTransform):
         (N, size) of every env."""
         mask = mask.unsqueeze(-1)
         self.last_action.masked_fill_(mask, 0.0)
+        self.history.masked_fill_(mask.unsqueeze(-1), 0.0)
         if self.position_integral:
             first = self.integrate(torch.zeros_like(self.integral), odometry, goal)
             self.integral.copy_(torch.where(mask, first, self.integral))
-        return self.build(odometry, goal, self.last_action, self.integral)
+        return self.build(odometry, goal, self.last_action, self.integral, self.history)
 
     def _call(self, td: TensorDictBase) -> TensorDictBase:
         # build() writes a new tensor: the buffers themselves are never handed out
-        obs = self.build(td.get(keys.ODOMETRY), td.get(keys.GOAL), self.last_action, self.integral)
+        obs = self.build(td.get(keys.ODOMETRY), td.get(keys.GOAL), self.last_action, self.integral, self.history)
         td.set(keys.OBSERVATION, obs)
         return td
 

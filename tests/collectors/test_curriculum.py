@@ -8,7 +8,7 @@ import torch
 from bfc import keys
 from bfc.collectors.curriculum import Curriculum
 from bfc.factory import find_transform, make_env
-from bfc.transforms import JumpingDistribution
+from bfc.transforms import ActionDelay, JumpingDistribution, ObservationDelay
 from tests.training.helpers import compose_cfg
 
 WIDE = [
@@ -84,3 +84,37 @@ def test_a_resumed_run_flies_the_curriculum_where_it_left_off(tmp_path):
     world = resumed.collection  # where the next batch (from 2048) is flown
     assert world.jd.range_scale == pytest.approx(0.75) and world.jd.inverted_scale == pytest.approx(0.5)
     resumed.close()
+
+
+@pytest.mark.parametrize("grow", [True, False])
+def test_delays_grow_in_with_the_curriculum_unless_told_not_to(grow):
+    """latency.curriculum: no delay at the first frame, half way half of each range, then all of it
+    (a fixed delay as well as a range); false: the configured delays from the first frame."""
+    from bfc.collectors.collection import LocalCollection
+
+    cfg = compose_cfg(
+        [
+            "extras=none",
+            "env.num_envs=64",
+            "collector.frames_per_batch=64",
+            "curriculum.frames=1000",
+            "latency.observation_steps=[2,6]",
+            "latency.action_steps=3",
+            f"latency.curriculum={str(grow).lower()}",
+        ]
+    )
+    local = LocalCollection(cfg, None, 64)  # the curriculum applied before the first reset
+    obs_delay, act_delay = (find_transform(local.env, c) for c in (ObservationDelay, ActionDelay))
+    mask = torch.ones(64, dtype=torch.bool)
+
+    def drawn():
+        obs_delay.restart(mask, torch.zeros(64, 18))
+        act_delay.restart_at_hover(mask)
+        return obs_delay.delay.min().item(), obs_delay.delay.max().item(), act_delay.delay.unique().tolist()
+
+    assert drawn() == ((0, 0, [0]) if grow else (2, 6, [3]))
+    local.curriculum.apply(500)
+    assert drawn() == ((1, 3, [2]) if grow else (2, 6, [3]))  # 1.5 rounds to 2
+    local.curriculum.apply(1000)
+    assert drawn() == (2, 6, [3])
+    local.env.close()
