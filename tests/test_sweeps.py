@@ -100,12 +100,18 @@ def test_ctrl_c_stops_a_sweep_and_leaves_its_finished_runs_whole(tmp_path):
         stdout=subprocess.DEVNULL,
         stderr=subprocess.PIPE,
         text=True,
+        env={**os.environ, "PYTHONFAULTHANDLER": "1"},  # SIGABRT dumps every thread's stack
     )
     deadline = time.time() + 300
     while time.time() < deadline and not list(tmp_path.glob("*/seed0_1/checkpoints/last.pt")):
         time.sleep(0.2)
     process.send_signal(signal.SIGINT)
-    _, err = process.communicate(timeout=120)
+    try:
+        _, err = process.communicate(timeout=120)
+    except subprocess.TimeoutExpired:  # a hang: say where each thread is
+        process.send_signal(signal.SIGABRT)
+        _, err = process.communicate(timeout=60)
+        pytest.fail(f"the sweep did not stop within 120 s of SIGINT; its threads:\n{err[-8000:]}")
     assert process.returncode == 130, err[-3000:]
     assert err.strip().splitlines()[-1].startswith("interrupted: every finished run is complete")
     assert "Traceback" not in err
