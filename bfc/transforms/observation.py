@@ -177,7 +177,8 @@ class PolicyObservation(BatchedTransform):
         (N, size) of every env."""
         mask = mask.unsqueeze(-1)
         self.last_action.masked_fill_(mask, 0.0)
-        self.history.masked_fill_(mask.unsqueeze(-1), 0.0)
+        if self.command_history:
+            self.history.masked_fill_(mask.unsqueeze(-1), 0.0)
         if self.position_integral:
             first = self.integrate(torch.zeros_like(self.integral), odometry, goal)
             self.integral.copy_(torch.where(mask, first, self.integral))
