@@ -20,8 +20,7 @@ from bfc import keys
 class FedBackController(TensorDictModuleBase):
     """Reads `"odometry"` and `"goal"`, writes `"action"` (rad/s), and feeds its own last command
     (integral, history) back. The previous command and the history start at the hover speed (the
-    integral at zero)
-    for every env: at the first call, at a call whose batch size differs from the stored state,
+    integral at zero) for every env: at the first call, at a call whose batch size differs from the stored state,
     after `reset()` (also `begin_flight()`, which flight runners call before a flight), and per env
     where the input carries TorchRL's `"is_init"` (InitTracker) or `"step_count" == 0`.
     Subclasses set `hover_speed` (and `command_history` when they have one) and implement `step`."""
