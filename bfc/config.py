@@ -146,6 +146,9 @@ class ModelConfig:
     critic_hidden: list[int] = field(default_factory=lambda: [128, 128])
     activation: str = "relu"  # relu | tanh | elu; relu learns to fly in half the frames of tanh (docs/training.md)
     init_std: float = 0.2
+    # a ceiling on the std (null: free). PPO under latency widens it; capping it did not help there,
+    # optim.desired_kl did (docs/training.md, "Latency in training")
+    max_std: float | None = None
     include_acceleration: bool = False
     # the integral of the position error as 3 more inputs: lets the policy remove a steady offset
     # (mass, thrust, wind) as a PID's integral term does (bfc/transforms/observation.py; extras=none: off)
@@ -248,6 +251,10 @@ class OptimConfig:
     anneal_lr: bool = (
         True  # linear decay to 0 at the last frame: the final policy is the settled one (extras=none: off)
     )
+    # PPO: a target for each update's mean KL (null: off); the rate falls by 1.5x after an update
+    # beyond twice it and climbs back (up to optim.lr) below half of it (rsl_rl's adaptive
+    # schedule; bfc/training/lr_schedule.py). Latency training needs it (docs/training.md)
+    desired_kl: float | None = None
 
 
 @dataclass
@@ -561,6 +568,14 @@ def validate(cfg) -> None:
         check(d >= 0, "jd.decay_frames", "null (= collector.total_frames) or >= 0", d)
     check(cfg.optim.lr > 0, "optim.lr", "> 0", cfg.optim.lr)
     check(cfg.optim.adam_eps > 0, "optim.adam_eps", "> 0", cfg.optim.adam_eps)
+    kl = cfg.optim.desired_kl
+    check(kl is None or (isinstance(kl, (int, float)) and 0 < kl < math.inf), "optim.desired_kl", "null or > 0", kl)
+    check(
+        kl is None or cfg.algo.name == "ppo",
+        "optim.desired_kl",
+        f"null with algo={cfg.algo.name} (it adapts PPO's step)",
+        kl,
+    )
     if lo.clip_value is not None:
         check(lo.clip_value > 0, "loss.clip_value", "null (off) or > 0", lo.clip_value)
     a = cfg.algo
@@ -589,6 +604,13 @@ def validate(cfg) -> None:
         cfg.model.activation in ("tanh", "relu", "elu"), "model.activation", "tanh, relu or elu", cfg.model.activation
     )
     check(cfg.model.init_std > 0, "model.init_std", "> 0", cfg.model.init_std)
+    max_std = cfg.model.max_std
+    check(
+        max_std is None or (isinstance(max_std, (int, float)) and cfg.model.init_std <= max_std < math.inf),
+        "model.max_std",
+        f"null or a number >= model.init_std ({cfg.model.init_std})",
+        max_std,
+    )
     check(cfg.noise.kind in ("none", "gaussian", "ou"), "noise.kind", "none, gaussian or ou", cfg.noise.kind)
     bias = cfg.noise.bias
     values = list(bias) if isinstance(bias, (list, tuple)) or OmegaConf.is_list(bias) else [bias]

@@ -30,7 +30,9 @@ class GaussianActor(nn.Module):
     """obs -> (loc, scale): an MLP mean and a learned, state-independent std per motor.
 
     The last layer starts near zero, so the untrained policy commands about hover (action 0);
-    the std starts at `init_std` (small: big motor noise makes take-off a lottery).
+    the std starts at `init_std` (small: big motor noise makes take-off a lottery) and, with
+    `max_std`, never exceeds it (under latency PPO widens a free std; capping it did not save
+    those runs, a KL target on the step did: docs/training.md, "Latency in training").
     squash=True puts the mean through tanh (inside [-1, 1]): for DDPG, whose actor climbs the
     critic's gradient and would otherwise leave the action range. normalize=True puts the
     observation through running statistics first (`obs_norm`, bfc.agent.normalization; the paper
@@ -45,9 +47,11 @@ class GaussianActor(nn.Module):
         init_std: float = 0.2,
         squash: bool = False,
         normalize: bool = False,
+        max_std: float | None = None,
     ):
         super().__init__()
         self.squash = bool(squash)
+        self.max_log_std = None if max_std is None else math.log(max_std)
         self.obs_norm = ObservationNorm(obs_size) if normalize else None
         self.mlp = MLP(
             in_features=obs_size, out_features=4, num_cells=list(hidden), activation_class=ACTIVATIONS[activation]
@@ -69,7 +73,13 @@ class GaussianActor(nn.Module):
         loc = self._mlp(obs)
         if self.squash:
             loc = loc.tanh()
-        return loc, self.log_std.exp().expand_as(loc)
+        return loc, self.std.expand_as(loc)
+
+    @property
+    def std(self) -> torch.Tensor:
+        """The Gaussian's std per motor (4,): the learned one, capped at `max_std` when set."""
+        log_std = self.log_std if self.max_log_std is None else self.log_std.clamp(max=self.max_log_std)
+        return log_std.exp()
 
     def mean(self, obs: torch.Tensor) -> torch.Tensor:
         """The deterministic action: the Gaussian's mean (`forward`'s loc, without the scale)."""

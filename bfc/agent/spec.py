@@ -29,6 +29,7 @@ class PolicySpec:
     hidden: tuple[int, ...] = (128, 128)  # the actor's hidden layers
     activation: str = "relu"
     init_std: float = 0.2
+    max_std: float | None = None  # the std's ceiling in training (None: free)
     squash: bool = False  # tanh on the mean (DDPG)
     # running observation statistics in front of the MLP (the paper preset; bfc.agent.normalization)
     normalize_observation: bool = False
@@ -47,6 +48,14 @@ class PolicySpec:
             list(self.hidden),
         )
         check(math.isfinite(self.init_std) and self.init_std > 0, "model.init_std", "> 0", self.init_std)
+        if self.max_std is not None:
+            self.max_std = float(self.max_std)
+            check(
+                math.isfinite(self.max_std) and self.max_std >= self.init_std,
+                "model.max_std",
+                f"null or a number >= model.init_std ({self.init_std})",
+                self.max_std,
+            )
         check(math.isfinite(self.control_hz) and self.control_hz > 0, "env.control_hz", "> 0", self.control_hz)
         self.include_acceleration, self.position_integral = (
             bool(self.include_acceleration),
@@ -78,6 +87,7 @@ class PolicySpec:
             hidden=tuple(int(h) for h in m.actor_hidden),
             activation=m.activation,
             init_std=m.init_std,
+            max_std=m.max_std,
             squash=m.squash,
             normalize_observation=m.normalize_observation,
             control_hz=e.control_hz,
@@ -111,7 +121,13 @@ class PolicySpec:
     def make_net(self) -> GaussianActor:
         """A new (untrained) network of this shape."""
         return GaussianActor(
-            self.observation_size, self.hidden, self.activation, self.init_std, self.squash, self.normalize_observation
+            self.observation_size,
+            self.hidden,
+            self.activation,
+            self.init_std,
+            self.squash,
+            self.normalize_observation,
+            self.max_std,
         )
 
     def make_action_map(self) -> MotorSpeedAction:

@@ -34,6 +34,7 @@ from bfc.agent.normalization import RewardScale
 from bfc.collectors import episode_stats, make_collection
 from bfc.evaluation.evaluator import ProtocolEvaluator
 from bfc.training.learners import learner_gamma, make_learner
+from bfc.training.lr_schedule import adapt_to_kl, set_learning_rate
 
 PAPER_SUCCESS = 0.905
 CHECKPOINT = Path("checkpoints") / "last.pt"
@@ -324,12 +325,9 @@ class Runner:
         self.frames += n
         self.batches += 1
         torch.set_num_threads(self.update_threads)  # the update: torch gets the cores
-        if cfg.optim.anneal_lr:  # linear decay to 0 at the last frame (CleanRL's recipe)
-            factor = max(0.0, 1.0 - (self.frames - n) / self.total)
-            for optimizer in self.learner.optimizers:
-                for group in optimizer.param_groups:
-                    group.setdefault("initial_lr", group["lr"])
-                    group["lr"] = group["initial_lr"] * factor
+        if cfg.optim.anneal_lr or cfg.optim.desired_kl is not None:
+            anneal = max(0.0, 1.0 - (self.frames - n) / self.total) if cfg.optim.anneal_lr else 1.0
+            set_learning_rate(self.learner.optimizers, anneal)
         batch = data
         if self.reward_scale is not None:  # the learner sees scaled rewards; the logs, the env's
             batch = data.clone()
@@ -337,6 +335,8 @@ class Runner:
             batch.set(("next", keys.REWARD), self.reward_scale(data.get(("next", keys.REWARD)), done))
         metrics = self.learner.update(batch)
         metrics["train/lr"] = self.learner.optimizers[0].param_groups[0]["lr"]
+        if cfg.optim.desired_kl is not None:
+            adapt_to_kl(self.learner.optimizers, metrics["loss/approx_kl"], cfg.optim.desired_kl)
         if self.net.obs_norm is not None:  # after the update: it scored the batch with the stats it was collected with
             self.net.obs_norm.update(data.get(keys.OBSERVATION))
         self.collection.update_policy_weights_()
@@ -353,7 +353,7 @@ class Runner:
         self.timing["update_seconds"] += t_updated - t_collected
         self.timing["batches"] += 1
         metrics["time/wall_seconds"] = self.wall
-        metrics["train/policy_std"] = self.net.log_std.exp().mean().item()
+        metrics["train/policy_std"] = self.net.std.mean().item()
         metrics.update(self.collection.stats())  # the world of the batch just collected
         return metrics
 

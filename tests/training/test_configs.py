@@ -238,6 +238,22 @@ def test_paper_preset_sets_each_cited_value_and_nothing_else(preset):
     assert {k: with_jd[k] for k in expected} == expected
 
 
+def test_latency_preset_sets_the_latency_recipe_and_nothing_else():
+    """+preset=latency: the measured latency recipe (docs/training.md) on top of the default."""
+    expected = {
+        "latency.observation_steps": [3, 4],
+        "latency.action_steps": 1,
+        "optim.desired_kl": 0.02,
+        "jd.velocity_range": [-3.0, 3.0],
+        "jd.angular_velocity_range": [-230.0, 230.0],
+    }
+    preset, plain = _flat(compose_cfg(["+preset=latency"])), _flat(compose_cfg())
+    assert {k: preset[k] for k in expected} == expected
+    assert {k for k in plain if preset[k] != plain[k]} == set(expected)
+    assert preset["latency.curriculum"] is True
+    validate(compose_cfg(["+preset=latency"]))
+
+
 def test_a_paper_preset_beside_another_algorithm_names_the_right_preset():
     err = one_line_error(run_cli("+preset=paper", "algo=trpo"))
     assert "use +preset=paper_trpo" in err
