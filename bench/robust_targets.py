@@ -69,7 +69,8 @@ def main() -> None:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("runs", nargs="*", type=Path, help="train.py run directories")
     p.add_argument("--policy", nargs="*", default=[], help="extra policy files")
-    p.add_argument("--suites", nargs="*", default=None, help=f"default: all of {', '.join(CONDITIONS)}")
+    every_suite = ", ".join(CONDITIONS).replace("%", "%%")  # argparse formats help with %
+    p.add_argument("--suites", nargs="*", default=None, help=f"default: all of {every_suite}")
     p.add_argument("--hardware", action="store_true", help="the protocol and suite=hardware's rows, issue 29's targets")
     p.add_argument("--seed", type=int, default=TEST_SEED, help="the starts' seed (0: the test starts)")
     p.add_argument("--num-starts", type=int, default=100)

@@ -1,5 +1,6 @@
 """What a new user meets first: the import paths, composing configs, clear errors, no global side effects."""
 
+import runpy
 import subprocess
 import sys
 import textwrap
@@ -254,3 +255,14 @@ def test_checking_a_command_line_loads_no_torch_and_knows_every_controller():
     from bfc.controllers import CONTROLLERS
 
     assert sorted(CONTROLLER_NAMES) == sorted(CONTROLLERS)
+
+
+@pytest.mark.parametrize("script", sorted(p.name for p in (ROOT / "bench").glob("*.py")))
+def test_every_benchmark_explains_itself(script, monkeypatch, capsys):
+    """`python bench/X.py --help` prints its usage (a '%' in a help string once made it a traceback)."""
+    monkeypatch.setattr(sys, "argv", [script, "--help"])
+    monkeypatch.syspath_prepend(str(ROOT / "bench"))
+    with pytest.raises(SystemExit) as exit_:
+        runpy.run_path(str(ROOT / "bench" / script), run_name="__main__")
+    assert exit_.value.code == 0
+    assert "usage:" in capsys.readouterr().out

@@ -241,9 +241,10 @@ def test_paper_preset_sets_each_cited_value_and_nothing_else(preset):
 def test_latency_preset_sets_the_latency_recipe_and_nothing_else():
     """+preset=latency: the measured latency recipe (docs/training.md) on top of the default."""
     expected = {
-        "latency.observation_steps": [3, 4],
+        "latency.observation_steps": [0, 5],
         "latency.action_steps": 1,
-        "optim.desired_kl": 0.02,
+        "model.command_history": 4,
+        "optim.desired_kl": 0.05,
         "jd.velocity_range": [-3.0, 3.0],
         "jd.angular_velocity_range": [-230.0, 230.0],
     }
