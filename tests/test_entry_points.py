@@ -259,7 +259,7 @@ def test_checking_a_command_line_loads_no_torch_and_knows_every_controller():
 
 @pytest.mark.parametrize("script", sorted(p.name for p in (ROOT / "bench").glob("*.py")))
 def test_every_benchmark_explains_itself(script, monkeypatch, capsys):
-    """`python bench/X.py --help` prints its usage (a '%' in a help string once made it a traceback)."""
+    """`bench/X.py --help` (run in this process) prints its usage: a '%' in a help string once made it a traceback."""
     monkeypatch.setattr(sys, "argv", [script, "--help"])
     monkeypatch.syspath_prepend(str(ROOT / "bench"))
     with pytest.raises(SystemExit) as exit_:
