@@ -81,8 +81,9 @@ class JDConfig:
     roll_range: list[float] = field(default_factory=lambda: [-180.0, 180.0])  # degrees (paper: +-60)
     pitch_range: list[float] = field(default_factory=lambda: [-90.0, 90.0])  # (paper: +-60)
     yaw_range: list[float] = field(default_factory=lambda: [-180.0, 180.0])
-    velocity_range: list[float] = field(default_factory=lambda: [-1.0, 1.0])  # m/s, per axis (paper: 0)
-    angular_velocity_range: list[float] = field(default_factory=lambda: [-115.0, 115.0])  # deg/s, per axis
+    # thrown and spun: with a late estimate a policy must learn to catch these (before: +-1, +-115)
+    velocity_range: list[float] = field(default_factory=lambda: [-3.0, 3.0])  # m/s, per axis (paper: 0)
+    angular_velocity_range: list[float] = field(default_factory=lambda: [-230.0, 230.0])  # deg/s, per axis
     inverted_share: float = 0.6  # of the right-way-up air starts, turned upside down (x curriculum progress)
     inverted_at_rest: float = 0.0  # of those upside-down starts, released at rest (no velocity, no body rates)
     inverted_spread: float = 0.5  # their roll, pitch x this before the turn (with the curriculum): nearer 180 deg
@@ -129,10 +130,11 @@ class NoiseConfig:
 class LatencyConfig:
     """What a flight computer adds (bfc/transforms/latency.py): odometry `observation_steps`
     control steps old, commands applied `action_steps` late; a number, or [low, high] for a delay
-    drawn per env at each reset (uniform over the integers). 0: off."""
+    drawn per env at each reset (uniform over the integers). 0: off (extras=none). Trained
+    through both, the policy flies a flight computer's late estimate (docs/training.md)."""
 
-    observation_steps: Any = 0
-    action_steps: Any = 0
+    observation_steps: Any = field(default_factory=lambda: [0, 5])  # 0-50 ms at 100 Hz, drawn per episode
+    action_steps: Any = 1  # commands 10 ms late
     # the delays grow from none to these over curriculum.frames (bfc/collectors/curriculum.py);
     # false: all of them from the first frame (with them from frame 0, seed 2 never learned to fly)
     curriculum: bool = True
@@ -154,8 +156,9 @@ class ModelConfig:
     # (mass, thrust, wind) as a PID's integral term does (bfc/transforms/observation.py; extras=none: off)
     position_integral: bool = True
     # the k commands before the previous one as 4 k more inputs: what a policy needs to predict
-    # through latency (bfc/transforms/observation.py; docs/training.md, "Latency in training")
-    command_history: int = 0
+    # through latency, from which it tells how late its odometry is (bfc/transforms/observation.py;
+    # docs/training.md, "Latency in training"; extras=none: 0)
+    command_history: int = 4
     observation: str = "heading"  # heading (22 numbers, bfc's) | odometry (18, the paper's; +preset=paper)
     squash: bool = False  # tanh on the actor's mean (algo=ddpg sets it: its actor climbs the critic's gradient)
     action_map: str = "thrust"  # thrust | speed: how the policy's [-1, 1] maps to motor speed (transforms/action.py)
@@ -190,7 +193,9 @@ class LossConfig:
     lmbda: float = 0.95
     clip_epsilon: float = 0.2
     dtarg: float = 0.01
-    entropy_coeff: float = 0.0
+    # an entropy bonus (extras=none: 0): it keeps the std wide enough, late in a latency-trained run,
+    # to learn the flip from near upside down (docs/training.md, "Latency in training")
+    entropy_coeff: float = 0.005
     critic_coeff: float = 0.5
     critic_loss: str = "l2"  # l2 | l1 | smooth_l1: TorchRL's loss_critic_type
     # ClipPPOLoss's clip_value: the new value kept within this of the collected one (Baselines'
@@ -253,8 +258,9 @@ class OptimConfig:
     )
     # PPO: a target for each update's mean KL (null: off); the rate falls by 1.5x after an update
     # beyond twice it and climbs back (up to optim.lr) below half of it (rsl_rl's adaptive
-    # schedule; bfc/training/lr_schedule.py). Latency training needs it (docs/training.md)
-    desired_kl: float | None = None
+    # schedule; bfc/training/lr_schedule.py). Latency training needs it (docs/training.md;
+    # extras=none, algo=trpo, algo=ddpg: null)
+    desired_kl: float | None = 0.05
 
 
 @dataclass

@@ -40,7 +40,7 @@ def test_make_env_and_fly_are_functions_in_any_import_order():
         cfg.env.num_envs = 2
         for _ in range(3):
             env = bfc.make_env(cfg, seed=0)
-            assert env.reset()["observation"].shape == (2, 25)  # the default: 22 + the position integral
+            assert env.reset()["observation"].shape == (2, 41)  # the default: 22 + the integral + 4 commands
             env.close()
         import bfc.evaluation.flights
         from bfc.evaluation import fly, protocol_starts

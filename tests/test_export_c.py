@@ -31,7 +31,8 @@ CFLAGS = ["-std=c99", "-O2", "-Wall", "-Wextra", "-Wpedantic", "-Werror"]
 # 35: [0:7] bfc_policy_step on the row (speeds, next integral); [7:14] the step after a reset,
 # hover and a NULL integral; [14:21] bfc_policy_update on a freshly reset state (speeds, the
 # state's integral); [21:28] the step fed [14:21] back; [28:35] a second update. The integral
-# outputs start at -7: a policy without an integral leaves them alone.
+# outputs start at -7: a policy without an integral leaves them alone. A policy with a command
+# history gets the hover speed as its history at every call (what a reset gives it).
 HARNESS = r"""
 #include <stdio.h>
 #include "policy.h"
@@ -44,6 +45,19 @@ static void put(float *dst, const float *speeds, const float *integral)
     for (k = 0; k < 3; ++k) dst[4 + k] = integral[k];
 }
 
+#if BFC_POLICY_COMMAND_HISTORY > 0
+static float hist[BFC_POLICY_COMMAND_HISTORY][4];
+#define HISTORY , (const float (*)[4])hist, hist
+static void hover_history(void)
+{
+    int k;
+    for (k = 0; k < 4 * BFC_POLICY_COMMAND_HISTORY; ++k) hist[k / 4][k % 4] = BFC_POLICY_HOVER_SPEED;
+}
+#else
+#define HISTORY
+static void hover_history(void) {}
+#endif
+
 int main(int argc, char **argv)
 {
     float in[28], out[35], hover[4], speeds[4], integral[3];
@@ -55,16 +69,19 @@ int main(int argc, char **argv)
     while (fread(in, sizeof(float), 28, src) == 28) {
         const float *odometry = in, *goal = in + 18, *previous = in + 21, *integral_in = in + 25;
         for (k = 0; k < 3; ++k) integral[k] = -7.0f;
-        bfc_policy_step(odometry, goal, previous, integral_in, speeds, integral);
+        hover_history();
+        bfc_policy_step(odometry, goal, previous, integral_in, speeds, integral HISTORY);
         put(out, speeds, integral);
         for (k = 0; k < 3; ++k) integral[k] = -7.0f;
-        bfc_policy_step(odometry, goal, hover, NULL, speeds, integral);
+        hover_history();
+        bfc_policy_step(odometry, goal, hover, NULL, speeds, integral HISTORY);
         put(out + 7, speeds, integral);
         bfc_policy_reset(&state);
         bfc_policy_update(&state, odometry, goal, speeds);
         put(out + 14, speeds, state.integral);
         for (k = 0; k < 3; ++k) integral[k] = -7.0f;
-        bfc_policy_step(odometry, goal, out + 14, out + 18, speeds, integral);
+        hover_history();
+        bfc_policy_step(odometry, goal, out + 14, out + 18, speeds, integral HISTORY);
         put(out + 21, speeds, integral);
         bfc_policy_update(&state, odometry, goal, speeds);
         put(out + 28, speeds, state.integral);
@@ -120,7 +137,8 @@ def test_compiled_header_matches_the_torch_policy(headers, name):
     odometry, goal, previous, integral = parity_rows(spec)
     out = run_harness(header, torch.cat([odometry, goal, previous, integral], -1).numpy())
 
-    expected, _ = torch_reference(policy_path, odometry, goal, previous, integral)
+    history = torch.full((2000, spec.command_history, 4), hover) if spec.command_history else None  # the harness's
+    expected, _ = torch_reference(policy_path, odometry, goal, previous, integral, history)
     diff = np.abs(out[:, 0:4] - expected.numpy()).max() / hover
     assert diff <= TOLERANCE, f"max |C - torch| = {diff:.2e} hover speeds"
     inside = (expected > 0) & (expected < top)  # not all saturated motors
@@ -129,7 +147,9 @@ def test_compiled_header_matches_the_torch_policy(headers, name):
     # after a reset: hover as the previous command, a zero (here NULL) integral. Compared in the
     # policy's action units: near zero speed the thrust map's square root blows float32 rounding
     # up in rad/s (on these rows by up to 0.008 rad/s for the ONNX model too)
-    after_reset, _ = torch_reference(policy_path, odometry, goal, torch.full((2000, 4), hover), torch.zeros(2000, 3))
+    after_reset, _ = torch_reference(
+        policy_path, odometry, goal, torch.full((2000, 4), hover), torch.zeros(2000, 3), history
+    )
     to_action = spec.make_action_map().to_action
     assert (to_action(torch.from_numpy(out[:, 7:11])) - to_action(after_reset)).abs().max() <= TOLERANCE
     observation = spec.make_observation_map(2000)
@@ -161,7 +181,7 @@ def test_header_is_self_contained_and_names_its_settings(headers):
     assert "#define BFC_POLICY_CONTROL_HZ 100.0f" in text and "#define BFC_POLICY_HAS_INTEGRAL 1" in text
     assert "#define BFC_POLICY_MAX_ROTOR_SPEED 838.0f" in text and '#define BFC_POLICY_ACTION_MAP "thrust"' in text
     macs = sum(m.weight.numel() for m in net.mlp if isinstance(m, nn.Linear))
-    assert f"#define BFC_POLICY_MACS {macs} " in text and macs == 25 * 128 + 128 * 128 + 128 * 4
+    assert f"#define BFC_POLICY_MACS {macs} " in text and macs == 41 * 128 + 128 * 128 + 128 * 4  # 41: with a history
     tiny = headers["tiny"][1].read_text()
     assert "#define BFC_POLICY_CONTROL_HZ 250.0f" in tiny and "#define BFC_POLICY_HAS_INTEGRAL 0" in tiny
     assert "expm1f" in tiny and '#define BFC_POLICY_ACTION_MAP "speed"' in tiny

@@ -384,7 +384,7 @@ def generate_c(spec: PolicySpec, net, source: str = "policy.pt", name: str = "po
         history_arg = "history_action"
         state_field = f"\n    float history[{K}][4];          /* rad/s: the commands before it, newest first */"
         reset_history = f"\n    for (k = 0; k < 4 * {K}; ++k) state->history[k / 4][k % 4] = {P}_HOVER_SPEED;"
-        update_history = ", state->history, state->history"
+        update_history = ", (const float (*)[4])state->history, state->history"  # C99: no implicit const for 2-D
     else:
         history_code, history_arg, state_field, reset_history, update_history = "", "NULL", "", "", ""
 

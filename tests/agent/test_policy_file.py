@@ -21,7 +21,7 @@ def test_the_spec_of_a_config_is_what_the_env_and_the_file_carry(tmp_path):
     assert (spec.action_map, spec.control_hz, spec.position_integral) == ("speed", 50.0, True)
     env = make_env(cfg, num_envs=2, seed=0)
     observation, action = find_transform(env, PolicyObservation), find_transform(env, MotorSpeedAction)
-    assert observation.size == spec.observation_size == env.reset()["observation"].shape[-1] == 25
+    assert observation.size == spec.observation_size == env.reset()["observation"].shape[-1] == 41  # 22 + 3 + 16
     assert action.action_map == "speed" and action.hover_speed == spec.nominal_airframe.hover_speed
     env.close()
     torch.manual_seed(0)

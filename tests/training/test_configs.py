@@ -60,8 +60,14 @@ def test_the_schema_is_what_the_default_runs_and_extras_none_the_paper_variants(
     assert list(robust.model.actor_hidden) == [128, 128] and list(plain.model.actor_hidden) == [64, 64]
     assert robust.loss.epochs == 2 and plain.loss.epochs == 4
     assert robust.jd.p_end == 0.75 and plain.jd.p_end == 0.0 and list(plain.jd.roll_range) == [-60.0, 60.0]
+    # the default trains through latency; the paper's BFC flies a prompt estimate
+    assert list(robust.latency.observation_steps) == [0, 5] and robust.latency.action_steps == 1
+    assert plain.latency.observation_steps == 0 and plain.latency.action_steps == 0
+    assert robust.model.command_history == 4 and plain.model.command_history == 0
+    assert robust.optim.desired_kl == 0.05 and plain.optim.desired_kl is None
+    assert robust.loss.entropy_coeff == 0.005 and plain.loss.entropy_coeff == 0.0
     changed = {k for k in robust if robust[k] != plain[k]}
-    assert changed == {"variant", "model", "env", "jd", "curriculum", "optim", "loss"}
+    assert changed == {"variant", "model", "env", "jd", "curriculum", "optim", "loss", "latency"}
     # an ablation variant can still take them on explicitly
     assert compose_cfg(["+ablation=jd", "extras=robust"]).model.position_integral
 
@@ -238,21 +244,47 @@ def test_paper_preset_sets_each_cited_value_and_nothing_else(preset):
     assert {k: with_jd[k] for k in expected} == expected
 
 
-def test_latency_preset_sets_the_latency_recipe_and_nothing_else():
-    """+preset=latency: the measured latency recipe (docs/training.md) on top of the default."""
+LATENCY_RECIPE = {
+    "latency.observation_steps": [0, 5],
+    "latency.action_steps": 1,
+    "model.command_history": 4,
+    "loss.entropy_coeff": 0.005,
+    "optim.desired_kl": 0.05,
+    "jd.velocity_range": [-3.0, 3.0],
+    "jd.angular_velocity_range": [-230.0, 230.0],
+}
+
+
+def test_latency_preset_is_the_default_and_adds_the_recipe_elsewhere():
+    """+preset=latency: the measured latency recipe (docs/training.md), which the default trains:
+    on the default it changes nothing; on the paper's BFC it adds the recipe and nothing else."""
+    default = _flat(compose_cfg())
+    assert {k: default[k] for k in LATENCY_RECIPE} == LATENCY_RECIPE and default["latency.curriculum"] is True
+    assert _flat(compose_cfg(["+preset=latency"])) == default
+    plain, added = (
+        _flat(compose_cfg(["+ablation=jd_css_tdts"])),
+        _flat(compose_cfg(["+ablation=jd_css_tdts", "+preset=latency"])),
+    )
+    assert {k: added[k] for k in LATENCY_RECIPE} == LATENCY_RECIPE
+    assert {k for k in plain if added[k] != plain[k]} == set(LATENCY_RECIPE)
+    validate(compose_cfg(["+ablation=jd_css_tdts", "+preset=latency"]))
+
+
+def test_prompt_preset_is_the_default_before_latency_training():
+    """+preset=prompt: the previous default (a prompt estimate): the recipe's keys back, nothing else."""
     expected = {
-        "latency.observation_steps": [0, 5],
-        "latency.action_steps": 1,
-        "model.command_history": 4,
-        "optim.desired_kl": 0.05,
-        "jd.velocity_range": [-3.0, 3.0],
-        "jd.angular_velocity_range": [-230.0, 230.0],
+        "latency.observation_steps": 0,
+        "latency.action_steps": 0,
+        "model.command_history": 0,
+        "loss.entropy_coeff": 0.0,
+        "optim.desired_kl": None,
+        "jd.velocity_range": [-1.0, 1.0],
+        "jd.angular_velocity_range": [-115.0, 115.0],
     }
-    preset, plain = _flat(compose_cfg(["+preset=latency"])), _flat(compose_cfg())
-    assert {k: preset[k] for k in expected} == expected
-    assert {k for k in plain if preset[k] != plain[k]} == set(expected)
-    assert preset["latency.curriculum"] is True
-    validate(compose_cfg(["+preset=latency"]))
+    prompt, default = _flat(compose_cfg(["+preset=prompt"])), _flat(compose_cfg())
+    assert {k: prompt[k] for k in expected} == expected
+    assert {k for k in default if prompt[k] != default[k]} == set(LATENCY_RECIPE)
+    validate(compose_cfg(["+preset=prompt", "algo=trpo"]))
 
 
 def test_a_paper_preset_beside_another_algorithm_names_the_right_preset():

@@ -212,7 +212,7 @@ def test_a_start_state_given_to_reset_is_honoured_by_the_sampled_stack():
     torch.testing.assert_close(td[keys.POSITION], start[:, 0:3])
     torch.testing.assert_close(quat_to_euler(td[keys.QUATERNION]), start[:, 3:6], atol=1e-5, rtol=0)
     torch.testing.assert_close(td[keys.LINEAR_VELOCITY], start[:, 6:9])
-    assert td[keys.OBSERVATION].shape == (4, 25)
+    assert td[keys.OBSERVATION].shape == (4, 41)  # the default: 22, the integral, 4 older commands
     # NaN: drawn (here x, y by CSS); an env outside "_reset" stays where it is
     partial = start.clone()
     partial[:, 0:2] = float("nan")
