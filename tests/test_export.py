@@ -64,6 +64,14 @@ def test_onnx_matches_the_torch_policy(models, name):
     to_action = spec.make_action_map().to_action
     diff = float((to_action(torch.from_numpy(got)) - to_action(expected)).abs().max())
     assert diff <= TOLERANCE, f"max |onnx - torch| = {diff:.2e} in action units"
+    # and in hover speeds, as for every policy (a history policy with the hover history a reset gives)
+    got_rad, expected_rad = got, expected
+    if k:
+        at_hover = torch.full((2000, k, 4), hover)
+        expected_rad, _ = torch_reference(policy_path, odometry, goal, previous, integral, at_hover)
+        got_rad = session.run(None, {**feeds, "motor_speed_history": at_hover.numpy()})[0]
+    hover_diff = np.abs(got_rad - expected_rad.numpy()).max() / hover
+    assert hover_diff <= TOLERANCE, f"max |onnx - torch| = {hover_diff:.2e} hover speeds"
     # the comparison is not all saturated motors: most commands lie strictly inside (0, max)
     inside = (expected > 0) & (expected < top)
     assert inside.float().mean() > 0.5
