@@ -115,8 +115,14 @@ def parity(policy: Path, header: Path) -> tuple[float, float]:
     wide, near = random_inputs(1000, hover, top), random_inputs(1000, hover, top, seed=3, spread=0.1)
     odometry, goal, previous = (torch.cat(pair) for pair in zip(wide, near, strict=True))
     integral = 0.5 * (2 * torch.rand(2000, 3, generator=torch.Generator().manual_seed(2)) - 1)
-    expected, _ = torch_reference(policy, odometry, goal, previous, integral)
-    speeds, _ = CController(header).step(odometry.numpy(), goal.numpy(), previous.numpy(), integral.numpy())
+    history = None  # a command-history policy: older commands drawn from the rows' previous ones, as the test
+    if spec.command_history:
+        rows = torch.randint(0, 2000, (2000 * spec.command_history,), generator=torch.Generator().manual_seed(4))
+        history = previous[rows].reshape(2000, spec.command_history, 4)
+    expected, _ = torch_reference(policy, odometry, goal, previous, integral, history)
+    speeds, _ = CController(header).step(
+        odometry.numpy(), goal.numpy(), previous.numpy(), integral.numpy(), None if history is None else history.numpy()
+    )
     diff = float(np.abs(speeds - expected.numpy()).max())
     return diff, diff / hover
 

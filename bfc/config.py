@@ -195,7 +195,7 @@ class LossConfig:
     dtarg: float = 0.01
     # an entropy bonus (extras=none: 0): it keeps the std wide enough, late in a latency-trained run,
     # to learn the flip from near upside down (docs/training.md, "Latency in training")
-    entropy_coeff: float = 0.005
+    entropy_coeff: float = 0.004
     critic_coeff: float = 0.5
     critic_loss: str = "l2"  # l2 | l1 | smooth_l1: TorchRL's loss_critic_type
     # ClipPPOLoss's clip_value: the new value kept within this of the collected one (Baselines'

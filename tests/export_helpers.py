@@ -13,6 +13,20 @@ PRETRAINED = ROOT / "pretrained" / "policy.pt"
 TOLERANCE = 1e-5
 
 
+def hover_speed_difference(got, expected, spec) -> float:
+    """max |got - expected| in hover speeds, over the commands where that measures float32 round-off:
+    for the thrust map, those at least a tenth of hover (its slope, hover^2 / command, multiplies the
+    action-unit round-off by at most 10 there; nearer 0 it grows without bound, and the action
+    units measure it instead) or clipped to 0 by both. Asserts that these are most commands."""
+    got, expected = torch.as_tensor(got), torch.as_tensor(expected)
+    hover = spec.nominal_airframe.hover_speed
+    judged = torch.ones_like(expected, dtype=torch.bool)
+    if spec.action_map == "thrust":
+        judged = (expected >= 0.1 * hover) | ((expected == 0) & (got == 0))
+    assert judged.float().mean() > 0.9, f"only {judged.float().mean():.0%} of the commands judged"
+    return float((got - expected).abs()[judged].max()) / hover
+
+
 def tiny_policy(path, action_map="speed", normalize=False):
     """A random 2x16 ELU policy with accelerations in its observation, on a heavier airframe
     (normalize=True: the observation through running statistics, as the paper preset trains)."""

@@ -65,7 +65,7 @@ def test_the_schema_is_what_the_default_runs_and_extras_none_the_paper_variants(
     assert plain.latency.observation_steps == 0 and plain.latency.action_steps == 0
     assert robust.model.command_history == 4 and plain.model.command_history == 0
     assert robust.optim.desired_kl == 0.05 and plain.optim.desired_kl is None
-    assert robust.loss.entropy_coeff == 0.005 and plain.loss.entropy_coeff == 0.0
+    assert robust.loss.entropy_coeff == 0.004 and plain.loss.entropy_coeff == 0.0
     changed = {k for k in robust if robust[k] != plain[k]}
     assert changed == {"variant", "model", "env", "jd", "curriculum", "optim", "loss", "latency"}
     # an ablation variant can still take them on explicitly
@@ -248,7 +248,7 @@ LATENCY_RECIPE = {
     "latency.observation_steps": [0, 5],
     "latency.action_steps": 1,
     "model.command_history": 4,
-    "loss.entropy_coeff": 0.005,
+    "loss.entropy_coeff": 0.004,
     "optim.desired_kl": 0.05,
     "jd.velocity_range": [-3.0, 3.0],
     "jd.angular_velocity_range": [-230.0, 230.0],
