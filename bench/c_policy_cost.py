@@ -26,7 +26,6 @@ import tempfile
 from pathlib import Path
 
 import numpy as np
-import torch
 from torch import nn
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -108,23 +107,16 @@ def time_calls(header: Path, calls: int) -> float:
 
 
 def parity(policy: Path, header: Path) -> tuple[float, float]:
-    from tests.test_export import random_inputs, torch_reference
+    from tests.export_helpers import parity_rows, torch_reference
 
     spec, _ = load_policy(policy)
-    hover, top = spec.nominal_airframe.hover_speed, spec.nominal_airframe.max_rotor_speed
-    wide, near = random_inputs(1000, hover, top), random_inputs(1000, hover, top, seed=3, spread=0.1)
-    odometry, goal, previous = (torch.cat(pair) for pair in zip(wide, near, strict=True))
-    integral = 0.5 * (2 * torch.rand(2000, 3, generator=torch.Generator().manual_seed(2)) - 1)
-    history = None  # a command-history policy: older commands drawn from the rows' previous ones, as the test
-    if spec.command_history:
-        rows = torch.randint(0, 2000, (2000 * spec.command_history,), generator=torch.Generator().manual_seed(4))
-        history = previous[rows].reshape(2000, spec.command_history, 4)
+    odometry, goal, previous, integral, history = parity_rows(spec)  # the export tests' rows
     expected, _ = torch_reference(policy, odometry, goal, previous, integral, history)
     speeds, _ = CController(header).step(
         odometry.numpy(), goal.numpy(), previous.numpy(), integral.numpy(), None if history is None else history.numpy()
     )
     diff = float(np.abs(speeds - expected.numpy()).max())
-    return diff, diff / hover
+    return diff, diff / spec.nominal_airframe.hover_speed
 
 
 def main() -> None:

@@ -30,25 +30,18 @@ from bfc.export import export_onnx  # noqa: E402
 def parity(policy: Path) -> dict:
     import onnxruntime as ort
 
-    from tests.export_helpers import random_inputs, torch_reference
+    from tests.export_helpers import parity_rows, torch_reference
 
     spec, _ = load_policy(policy)
     hover, top = spec.nominal_airframe.hover_speed, spec.nominal_airframe.max_rotor_speed
-    wide, near = random_inputs(1000, hover, top), random_inputs(1000, hover, top, seed=3, spread=0.1)
-    odometry, goal, previous = (torch.cat(pair) for pair in zip(wide, near, strict=True))
-    integral = 0.5 * (2 * torch.rand(2000, 3, generator=torch.Generator().manual_seed(2)) - 1)
-    k = spec.command_history
-    history = None
-    if k:
-        rows = torch.randint(0, 2000, (2000 * k,), generator=torch.Generator().manual_seed(4))
-        history = previous[rows].reshape(2000, k, 4)
+    odometry, goal, previous, integral, history = parity_rows(spec)
     expected, _ = torch_reference(policy, odometry, goal, previous, integral, history)
     with tempfile.TemporaryDirectory() as d:
         session = ort.InferenceSession(str(export_onnx(policy, Path(d) / "p.onnx")), providers=["CPUExecutionProvider"])
     feeds = {"odometry": odometry.numpy(), "goal": goal.numpy(), "previous_motor_speeds": previous.numpy()}
     if spec.position_integral:
         feeds["position_error_integral"] = integral.numpy()
-    if k:
+    if history is not None:
         feeds["motor_speed_history"] = history.numpy()
     got = session.run(None, feeds)[0]
     rad = float(np.abs(got - expected.numpy()).max())

@@ -13,6 +13,22 @@ PRETRAINED = ROOT / "pretrained" / "policy.pt"
 TOLERANCE = 1e-5
 
 
+def parity_rows(spec):
+    """The 2000 rows the export tests compare on: 1000 over the protocol's states and far beyond,
+    1000 near hover at the goal, integrals in +-0.5 m s, and for a command-history policy older
+    commands (n, k, 4) drawn from the rows' previous ones (None without a history)."""
+    hover, top = spec.nominal_airframe.hover_speed, spec.nominal_airframe.max_rotor_speed
+    wide = random_inputs(1000, hover, top)
+    near = random_inputs(1000, hover, top, seed=3, spread=0.1)
+    odometry, goal, previous = (torch.cat(pair) for pair in zip(wide, near, strict=True))
+    integral = 0.5 * (2 * torch.rand(2000, 3, generator=torch.Generator().manual_seed(2)) - 1)
+    k, history = spec.command_history, None
+    if k:
+        rows = torch.randint(0, 2000, (2000 * k,), generator=torch.Generator().manual_seed(4))
+        history = previous[rows].reshape(2000, k, 4)
+    return odometry, goal, previous, integral, history
+
+
 def hover_speed_difference(got, expected, spec) -> float:
     """max |got - expected| in hover speeds, over the commands where that measures float32 round-off:
     for the thrust map, those at least a tenth of hover (its slope, hover^2 / command, multiplies the

@@ -19,6 +19,7 @@ from tests.export_helpers import (  # noqa: E402
     ROOT,
     TOLERANCE,
     hover_speed_difference,
+    parity_rows,
     random_inputs,
     tiny_policy,
     torch_reference,
@@ -43,14 +44,9 @@ def test_onnx_matches_the_torch_policy(models, name):
     spec, _ = load_policy(policy_path)
     hover, top = spec.nominal_airframe.hover_speed, spec.nominal_airframe.max_rotor_speed
     # 1000 rows over the protocol's states and far beyond, and 1000 near hover at the goal (where
-    # a trained policy's commands are mostly inside its range)
-    wide = random_inputs(1000, hover, top)
-    near = random_inputs(1000, hover, top, seed=3, spread=0.1)
-    odometry, goal, previous = (torch.cat(pair) for pair in zip(wide, near, strict=True))
-    integral = 0.5 * (2 * torch.rand(2000, 3, generator=torch.Generator().manual_seed(2)) - 1)
-    k = spec.command_history  # a history policy: older commands drawn from the rows' previous ones
-    history = previous[torch.randint(0, 2000, (2000 * k,), generator=torch.Generator().manual_seed(4))]
-    history = history.reshape(2000, k, 4) if k else None
+    # a trained policy's commands are mostly inside its range); a history policy's older commands
+    odometry, goal, previous, integral, history = parity_rows(spec)
+    k = spec.command_history
     expected, _ = torch_reference(policy_path, odometry, goal, previous, integral, history)
     session = ort.InferenceSession(str(onnx_path), providers=["CPUExecutionProvider"])
     inputs, outputs = ["odometry", "goal", "previous_motor_speeds"], ["motor_speeds"]

@@ -18,7 +18,7 @@ from tests.export_helpers import (
     ROOT,
     TOLERANCE,
     hover_speed_difference,
-    random_inputs,
+    parity_rows,
     set_statistics,
     tiny_policy,
     torch_reference,
@@ -104,17 +104,6 @@ def headers(tmp_path_factory):
     }
 
 
-def parity_rows(spec):
-    """The 2000 rows tests/test_export.py checks the ONNX model on: 1000 over the protocol's states
-    and far beyond, 1000 near hover at the goal, integrals in +-0.5 m s."""
-    hover, top = spec.nominal_airframe.hover_speed, spec.nominal_airframe.max_rotor_speed
-    wide = random_inputs(1000, hover, top)
-    near = random_inputs(1000, hover, top, seed=3, spread=0.1)
-    odometry, goal, previous = (torch.cat(pair) for pair in zip(wide, near, strict=True))
-    integral = 0.5 * (2 * torch.rand(2000, 3, generator=torch.Generator().manual_seed(2)) - 1)
-    return odometry, goal, previous, integral
-
-
 def run_harness(header, rows: np.ndarray) -> np.ndarray:
     harness = header.parent / "harness.c"
     harness.write_text(HARNESS)
@@ -135,7 +124,7 @@ def test_compiled_header_matches_the_torch_policy(headers, name):
     policy_path, header = headers[name]
     spec, _ = load_policy(policy_path)
     hover, top = spec.nominal_airframe.hover_speed, spec.nominal_airframe.max_rotor_speed
-    odometry, goal, previous, integral = parity_rows(spec)
+    odometry, goal, previous, integral, _ = parity_rows(spec)
     out = run_harness(header, torch.cat([odometry, goal, previous, integral], -1).numpy())
 
     history = torch.full((2000, spec.command_history, 4), hover) if spec.command_history else None  # the harness's
@@ -209,7 +198,7 @@ def test_every_observation_kind_and_activation(tmp_path, spec):
         set_statistics(net)
     save_policy(tmp_path / "p.pt", spec, net)
     header = export_c(tmp_path / "p.pt", tmp_path / "policy.h")
-    odometry, goal, previous, integral = parity_rows(spec)
+    odometry, goal, previous, integral, _ = parity_rows(spec)
     out = run_harness(header, torch.cat([odometry, goal, previous, integral], -1).numpy())
     expected, _ = torch_reference(tmp_path / "p.pt", odometry, goal, previous, integral)
     hover = spec.nominal_airframe.hover_speed
