@@ -55,8 +55,10 @@ class EnvConfig:
     start_motors: str = "rest"
     num_threads: int | None = None  # MuJoCo rollout threads; None = all cores
     airframe: AirframeParams = field(default_factory=AirframeParams)
-    # a fifth of the env's body-rate penalty: fast flips recover from upside down (extras=none: 0.005)
-    reward: RewardParams = field(default_factory=lambda: RewardParams(angular_velocity=0.001))
+    # a fifth of the env's body-rate penalty: fast flips recover from upside down (extras=none: 0.005);
+    # a precision bonus 3 cm wide, not 10: the hover within a millimetre, and within 1 cm on a noisy
+    # estimate (docs/training.md, "Latency in training"; extras=none and +preset=prompt: 0.1)
+    reward: RewardParams = field(default_factory=lambda: RewardParams(angular_velocity=0.001, precision_radius=0.03))
     # a new airframe and wind every episode, as multipliers of the nominal airframe (extras=none: off)
     randomize: RandomizeParams = field(
         default_factory=lambda: RandomizeParams(

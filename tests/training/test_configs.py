@@ -57,6 +57,7 @@ def test_the_schema_is_what_the_default_runs_and_extras_none_the_paper_variants(
     assert tuple(plain.env.randomize.mass) == (1.0, 1.0) and plain.env.randomize.external_force == 0.0
     assert robust.curriculum.frames > 0 and plain.curriculum.frames == 0
     assert robust.env.reward.angular_velocity == 0.001 and plain.env.reward.angular_velocity == 0.005
+    assert robust.env.reward.precision_radius == 0.03 and plain.env.reward.precision_radius == 0.1
     assert list(robust.model.actor_hidden) == [128, 128] and list(plain.model.actor_hidden) == [64, 64]
     assert robust.loss.epochs == 2 and plain.loss.epochs == 4
     assert robust.jd.p_end == 0.75 and plain.jd.p_end == 0.0 and list(plain.jd.roll_range) == [-60.0, 60.0]
@@ -250,6 +251,7 @@ LATENCY_RECIPE = {
     "model.command_history": 4,
     "loss.entropy_coeff": 0.004,
     "optim.desired_kl": 0.05,
+    "env.reward.precision_radius": 0.03,
     "jd.velocity_range": [-3.0, 3.0],
     "jd.angular_velocity_range": [-230.0, 230.0],
 }
@@ -278,6 +280,7 @@ def test_prompt_preset_is_the_default_before_latency_training():
         "model.command_history": 0,
         "loss.entropy_coeff": 0.0,
         "optim.desired_kl": None,
+        "env.reward.precision_radius": 0.1,
         "jd.velocity_range": [-1.0, 1.0],
         "jd.angular_velocity_range": [-115.0, 115.0],
     }
