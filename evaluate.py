@@ -25,6 +25,7 @@ from hydra.core.hydra_config import HydraConfig
 from omegaconf import OmegaConf
 
 import bfc.headless_gl  # noqa: F401  (before mujoco is imported: MUJOCO_GL=egl without a display)
+from bfc import lifetime
 from bfc.cli import fail, precheck
 from bfc.config import (
     CONTROLLER_NAMES,
@@ -283,4 +284,8 @@ def run_robust(cfg, out: Path) -> None:
 
 if __name__ == "__main__":
     precheck("evaluate")
-    main()
+    try:
+        main()
+    except KeyboardInterrupt:
+        print("interrupted: nothing was written for the flights in progress", file=sys.stderr)
+        sys.exit(lifetime.INTERRUPTED)

@@ -8,7 +8,9 @@ python train.py -m +ablation=ppo,jd,jd_css_tdts seed=0,1,2   # a sweep
 python train.py resume=outputs/2026-11-22/10-00-00           # continue a killed run
 
 Bad input (an unknown key, a value out of range, a run directory with nothing to resume) ends
-with a one-line `error: ...` on stderr and exit status 2.
+with a one-line `error: ...` on stderr and exit status 2. SIGTERM (a scheduler's preemption) writes
+a checkpoint and exits with status 143; a collector worker that dies ends the run with one
+`error:` line and status 1; Ctrl-C exits with status 130 (bfc.lifetime, docs/training.md).
 """
 
 import os
@@ -21,6 +23,7 @@ from hydra.types import RunMode
 from omegaconf import OmegaConf
 
 import bfc.headless_gl  # noqa: F401  (before mujoco is imported: MUJOCO_GL=egl without a display, logger.video)
+from bfc import lifetime
 from bfc.cli import fail, precheck
 from bfc.config import check_keys, validate  # importing bfc.config registers the schema Hydra composes with
 from bfc.sweeps import objective, write_status
@@ -70,10 +73,18 @@ def main(cfg) -> float:
         if multirun:
             write_status(run_dir, "interrupted")
         raise
+    except lifetime.Preempted as p:
+        if multirun:
+            write_status(run_dir, "preempted", frames=p.frames)
+        again = "the same command" if multirun else f"python train.py resume={run_dir}"
+        print(f"preempted (SIGTERM): checkpoint written at {p.frames} frames; resume with: {again}", file=sys.stderr)
+        sys.exit(lifetime.PREEMPTED)
     except Exception as err:
         if not multirun:
             if isinstance(err, (ValueError, FileNotFoundError)):
                 fail(err)
+            if isinstance(err, lifetime.WorkerDied):
+                fail(err, status=lifetime.FAILED)
             raise
         line = str(err).strip().splitlines()[0] if str(err).strip() else type(err).__name__
         write_status(run_dir, "failed", error=line)
@@ -99,4 +110,4 @@ if __name__ == "__main__":
         main()
     except KeyboardInterrupt:
         print("interrupted: every finished run is complete; run the same command again to resume", file=sys.stderr)
-        sys.exit(130)
+        sys.exit(lifetime.INTERRUPTED)

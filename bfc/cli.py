@@ -6,6 +6,8 @@ from __future__ import annotations
 import argparse
 import sys
 
+from bfc.lifetime import BAD_INPUT
+
 # Hydra's own flags (hydra/_internal/utils.py, get_args_parser), so that the overrides among the
 # arguments can be told apart; flags that take a value list it.
 _HYDRA_FLAGS = {
@@ -41,11 +43,11 @@ def overrides_of(argv: list[str]) -> tuple[list[str], bool]:
     return [a for a in rest if not a.startswith("-")], ours
 
 
-def fail(err: Exception) -> None:
-    """Report bad input as one line and exit with status 2."""
+def fail(err: Exception, status: int = BAD_INPUT) -> None:
+    """Report bad input (or, with another `status`, a run that cannot go on) as one line and exit."""
     message = str(err).strip().splitlines()[0] if str(err).strip() else type(err).__name__
     print(f"error: {message}", file=sys.stderr)
-    sys.exit(2)
+    sys.exit(status)
 
 
 # Hydra plugins by the group option that selects them: the module, and the extra that installs it

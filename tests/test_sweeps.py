@@ -13,6 +13,8 @@ from pathlib import Path
 
 import pytest
 
+from tests.training.helpers import as_from_a_shell
+
 ROOT = Path(__file__).resolve().parents[1]
 # tiny jobs, one thread each, collected in the learner's process (two jobs share the two cores)
 TINY = [
@@ -90,14 +92,6 @@ def test_a_killed_sweep_resumes_by_running_again(tmp_path):
     assert all(j["status"] == "finished" for j in runs(tmp_path).values())
 
 
-def _as_from_a_shell() -> None:
-    """A command typed in a shell starts with SIGINT at its default. A test run started in the
-    background of a non-interactive shell (as CI may be) has SIGINT ignored, POSIX passes that on
-    to its children, and Python keeps an inherited ignore: the sweep would never see the Ctrl-C."""
-    signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
-    signal.signal(signal.SIGINT, signal.SIG_DFL)
-
-
 def test_ctrl_c_stops_a_sweep_and_leaves_its_finished_runs_whole(tmp_path):
     """A sequential sweep of a short and a long job, interrupted (SIGINT, as Ctrl-C sends) while
     the long one trains: one line, exit status 130, the short job's run whole."""
@@ -109,7 +103,7 @@ def test_ctrl_c_stops_a_sweep_and_leaves_its_finished_runs_whole(tmp_path):
         stderr=subprocess.PIPE,
         text=True,
         env={**os.environ, "PYTHONFAULTHANDLER": "1"},  # SIGABRT dumps every thread's stack
-        preexec_fn=_as_from_a_shell,
+        preexec_fn=as_from_a_shell,
     )
     deadline = time.time() + 300
     while time.time() < deadline and not list(tmp_path.glob("*/seed0_1/checkpoints/last.pt")):

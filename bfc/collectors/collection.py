@@ -1,6 +1,6 @@
 """What the runner collects from: the env, its curriculum and a collector, in the learner's
-process (`LocalCollection`) or in a worker process that collects the next batch while the learner
-updates on the last (`AsyncCollection`, `collector.workers=1`).
+process (`LocalCollection`) or in worker processes that collect the next batch while the learner
+updates on the last (`AsyncCollection`, `collector.workers=k`).
 
 Either way the runner sees one interface: iterate for batches, `stats()` for the world the last
 batch was collected in (JD's probability, TDTS events, physics failures, the curriculum, CSS's
@@ -10,7 +10,9 @@ for checkpoints, `close()`.
 
 from __future__ import annotations
 
-import queue
+import contextlib
+import os
+import pickle
 import traceback
 
 import torch
@@ -20,6 +22,7 @@ from tensordict import TensorDict
 from bfc.collectors.collector import make_collector
 from bfc.collectors.curriculum import Curriculum
 from bfc.factory import find_transform, make_env
+from bfc.lifetime import WorkerDied, bind_to_parent, death_cause
 from bfc.transforms import (
     ActionDelay,
     ControlledStartingState,
@@ -111,7 +114,8 @@ class AsyncCollection:
     seed on one machine for a given k; it is not the same run as `collector.workers=0` (the lag,
     the workers' own generators) nor as another k. A checkpoint holds every worker's state and
     the batches they had sent that the learner had not used yet, so a resumed run is
-    bit-identical too.
+    bit-identical too. A worker dies with this process, and one that dies raises `WorkerDied`
+    here instead of leaving the learner waiting (bfc.lifetime).
     """
 
     def __init__(self, cfg, net, total_frames: int):
@@ -161,13 +165,13 @@ class AsyncCollection:
         for k, v in self.net.state_dict().items():
             slot[k].copy_(v)
         for worker in self.workers:
-            worker.commands.put(("weights", self.version))
+            worker.send("weights", self.version)
 
     def state_dict(self) -> dict:
         """Every worker's state (after the batches it has sent) and the batches not yet handed out."""
         self._start()
         for worker in self.workers:
-            worker.commands.put(("snapshot",))
+            worker.send("snapshot")
         states = [worker.receive("state")[1] for worker in self.workers]
         pending = [[list(m) for m in worker.pending] for worker in self.workers]
         return {"workers": states, "pending": pending, "version": self.version, "frames": self.frames}
@@ -213,32 +217,42 @@ def _merge(stats: list[dict]) -> dict:
 
 
 class _Worker:
-    """One collector process and its two queues, seen from the learner."""
+    """One collector process, seen from the learner: a pipe each way (a socket pair; its far end
+    closed here, so a dead worker reads as end-of-file, never as a wait), the process, and the
+    batches received early. Messages are plain pickles of numpy arrays: copies through the pipe,
+    no shared-memory segment per batch and no file descriptor passed between the processes."""
 
     def __init__(self, ctx, index: int):
         self.ctx, self.index = ctx, index
-        self.commands, self.replies = ctx.Queue(), ctx.Queue()
-        self.process, self.resume = None, None
+        self.conn, self.process, self.resume = None, None, None
         self.pending: list = []  # batches received but not yet handed out
 
     def start(self, cfg: dict, slots, total_frames: int) -> None:
-        args = (cfg, slots, self.commands, self.replies, total_frames, self.resume)
+        self.conn, far = self.ctx.Pipe(duplex=True)
         name = f"bfc-collector-{self.index}"
+        args = (cfg, slots, far, self.conn, total_frames, self.resume, os.getpid(), name)
         self.process = self.ctx.Process(target=_work, args=args, daemon=True, name=name)
         self.process.start()
+        far.close()  # the worker holds the only copy: its death closes the pipe
+
+    def send(self, *message) -> None:
+        try:
+            self.conn.send_bytes(_dumps(message))
+        except OSError:  # a broken pipe: the worker is gone
+            raise self._died() from None
 
     def receive(self, kind: str):
         if kind == "batch" and self.pending:
             return self.pending.pop(0)
         while True:
             try:
-                message = self.replies.get(timeout=1.0)
-            except queue.Empty:
-                if not self.process.is_alive():
-                    raise RuntimeError(
-                        f"collector process {self.index} died (exit code {self.process.exitcode}) without a word"
-                    ) from None
-                continue
+                if not self.conn.poll(1.0):
+                    if not self.process.is_alive():
+                        raise self._died()
+                    continue
+                message = _loads(self.conn.recv_bytes())
+            except (EOFError, OSError):
+                raise self._died() from None
             if message[0] == "error":
                 _, kind, text, trace = message
                 if kind == "ValueError":  # bad input reaches the user as the one line it is
@@ -251,23 +265,76 @@ class _Worker:
             else:
                 raise RuntimeError(f"unexpected message from collector process {self.index}: {message[0]!r}")
 
+    def _died(self) -> WorkerDied:
+        self.process.join(timeout=5)
+        cause = death_cause(self.process.exitcode)
+        return WorkerDied(f"collector worker {self.index} (pid {self.process.pid}) died: {cause}")
+
     def stop(self) -> None:
         if self.process is not None and self.process.is_alive():
-            self.commands.put(("stop",))
+            with contextlib.suppress(WorkerDied):
+                self.send("stop")
             self.process.join(timeout=10)
             if self.process.is_alive():
-                self.process.terminate()
-        self.process = None
+                self.process.kill()  # it ignores SIGTERM (bfc.lifetime.bind_to_parent)
+                self.process.join(timeout=5)
+        if self.conn is not None:
+            self.conn.close()
+        self.conn, self.process = None, None
+
+
+def _dumps(message) -> bytes:
+    return pickle.dumps(_to_numpy(message), protocol=pickle.HIGHEST_PROTOCOL)
+
+
+def _loads(data: bytes):
+    return _to_torch(pickle.loads(data))
+
+
+def _to_numpy(x):
+    """Tensors as numpy arrays (their exact bytes), so plain pickle copies them: torch's own
+    reduction would share each through a new shared-memory segment and a passed descriptor."""
+    if isinstance(x, torch.Tensor):
+        return _Array(x.detach().numpy())
+    if isinstance(x, dict):
+        return {k: _to_numpy(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return type(x)(_to_numpy(v) for v in x)
+    return x
+
+
+def _to_torch(x):
+    if isinstance(x, _Array):
+        return torch.from_numpy(x.array)
+    if isinstance(x, dict):
+        return {k: _to_torch(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return type(x)(_to_torch(v) for v in x)
+    return x
+
+
+class _Array:
+    """A tensor in transit (a numpy array that the message's own arrays can be told apart from)."""
+
+    __slots__ = ("array",)
+
+    def __init__(self, array):
+        self.array = array
+
+    def __reduce__(self):
+        return _Array, (self.array,)
 
 
 class _Stop(Exception):
     pass
 
 
-def _work(cfg: dict, slots, commands, replies, total_frames: int, resume: dict | None) -> None:
+def _work(cfg: dict, slots, conn, learner_end, total_frames: int, resume: dict | None, parent: int, name: str) -> None:
     """The collector process: batch i flies the weights after i - 1 updates (the initial ones for
     batches 0 and 1) while the learner runs update i - 1; every command is handled in order
-    whenever the worker waits for weights it does not have yet."""
+    whenever the worker waits for weights it does not have yet. It dies with the learner."""
+    learner_end.close()
+    bind_to_parent(parent, name)
     try:
         torch.set_num_threads(1)
         cfg = OmegaConf.create(cfg)
@@ -285,30 +352,37 @@ def _work(cfg: dict, slots, commands, replies, total_frames: int, resume: dict |
             torch.set_rng_state(resume["torch_rng"])
             received, index = dict(resume["received"]), int(resume["index"])
 
+        def send(*message) -> None:
+            conn.send_bytes(_dumps(message))
+
         def handle(command) -> None:
             if command[0] == "weights":
                 received[command[1]] = {k: v.clone() for k, v in slots[command[1] % 2].items()}
             elif command[0] == "snapshot":
                 state = {"collection": local.state_dict(), "net": net.state_dict(), "received": received}
-                replies.put(("state", {**state, "torch_rng": torch.get_rng_state(), "index": index}))
+                send("state", {**state, "torch_rng": torch.get_rng_state(), "index": index})
             elif command[0] == "stop":
                 raise _Stop
+
+        def next_command():
+            return _loads(conn.recv_bytes())
 
         fpb = int(cfg.collector.frames_per_batch)
         batches = iter(local)
         while index * fpb < total_frames:
             need = max(0, index - 1)
             while need > 0 and need not in received:
-                handle(commands.get())
+                handle(next_command())
             if need > 0:
                 net.load_state_dict(received[need])
                 received = {v: w for v, w in received.items() if v >= need}
             batch = next(batches)
-            replies.put(("batch", index, batch.to_dict(), local.stats(), local.css_values()))
+            send("batch", index, batch.to_dict(), local.stats(), local.css_values())
             index += 1
         while True:  # all collected: answer snapshots (and keep the weights) until stopped
-            handle(commands.get())
-    except _Stop:
+            handle(next_command())
+    except (_Stop, EOFError, BrokenPipeError, ConnectionResetError):  # asked to stop, or the learner is gone
         return
     except Exception as err:  # noqa: BLE001 - reported to the learner, which raises it
-        replies.put(("error", type(err).__name__, str(err), traceback.format_exc(limit=5)))
+        with contextlib.suppress(OSError):
+            conn.send_bytes(_dumps(("error", type(err).__name__, str(err), traceback.format_exc(limit=5))))

@@ -33,6 +33,7 @@ from bfc.agent import PolicySpec, atomic_save, make_critic, save_policy, torchrl
 from bfc.agent.normalization import RewardScale
 from bfc.collectors import episode_stats, make_collection
 from bfc.evaluation.evaluator import ProtocolEvaluator
+from bfc.lifetime import Preempted, SigtermGuard, WorkerDied
 from bfc.training.learners import learner_gamma, make_learner
 from bfc.training.lr_schedule import adapt_to_kl, set_learning_rate
 
@@ -141,6 +142,8 @@ class Runner:
         self.stopped_early = False  # collector.stop_at_success was met
         self.paused = False  # checkpoint.pause_at_frames was reached
         self.collecting_since = time.time()  # unix seconds: start-up ends when collection starts (learn)
+        self.saved_frames = None  # the frames of the newest checkpoint on disk
+        self.sigterm = SigtermGuard()  # train() activates it: SIGTERM then checkpoints and raises Preempted
 
     # ------------------------------------------------------------------ save / load
     def state_dict(self) -> dict:
@@ -167,6 +170,7 @@ class Runner:
         if path.exists():
             path.replace(path.with_name(PREVIOUS.name))
         atomic_save(self.state_dict(), path)
+        self.saved_frames = self.frames
 
     def load(self, ckpt: dict) -> None:
         try:
@@ -253,6 +257,7 @@ class Runner:
             return json.loads((run_dir / "summary.json").read_text())
         else:
             self.load(ckpt)
+            self.saved_frames = self.frames
             if self.pause_due():  # already there (a kill after the pause point, or the same pause again)
                 print(f"{run_dir} is paused at {self.frames} frames (checkpoint.pause_at_frames): nothing to train")
                 self.paused = True
@@ -305,15 +310,21 @@ class Runner:
                     self.logger.add_image("css/square_values", css_image(css[0]), self.frames)
                 self.stopped_early = self.frames < self.total and self.should_stop()
             self.paused = self.frames < self.total and not self.stopped_early and self.pause_due()
-            if self.frames >= next_ckpt or self.frames >= self.total or self.stopped_early or self.paused:
+            ending = self.frames >= self.total or self.stopped_early or self.paused
+            preempted = self.sigterm.requested and not ending  # SIGTERM: checkpoint now, then stop
+            if self.frames >= next_ckpt or ending or preempted:
                 self.save()
                 next_ckpt = (self.frames // c.interval_frames + 1) * c.interval_frames
             if progress is not None:
                 progress.update(n)
                 progress.set_postfix(fps=f"{metrics['time/fps']:.0f}", success=f"{last_success:.2f}", refresh=False)
+            if preempted:
+                if progress is not None:
+                    progress.close()
+                raise Preempted(run_dir, self.frames)
             torch.set_num_threads(1)  # collection: MuJoCo's threads get the cores
             t_batch = time.perf_counter()
-            if self.frames >= self.total or self.stopped_early or self.paused:
+            if ending:
                 break
         if progress is not None:
             progress.close()
@@ -406,7 +417,13 @@ def train(cfg, run_dir) -> dict:
     runner = None
     try:
         runner = Runner(cfg, run_dir)
-        return runner.learn()
+        with runner.sigterm:
+            return runner.learn()
+    except WorkerDied as err:
+        if runner is None or runner.saved_frames is None:
+            raise WorkerDied(f"{err}; no checkpoint was written yet: start the run again") from None
+        hint = f"the run resumes from its last checkpoint ({runner.saved_frames} frames) with resume={run_dir}"
+        raise WorkerDied(f"{err}; {hint}") from None
     finally:
         if runner is not None:
             runner.close()

@@ -147,7 +147,7 @@ def test_tiny_run_of_each_algorithm_writes_tags_and_a_policy_evaluate_flies(algo
 
 def test_ddpg_run_resumes_bit_identically(tmp_path):
     """The checkpoint carries DDPG's replay buffer, target networks and optimizers."""
-    from .test_runs import _assert_same_checkpoint
+    from .helpers import assert_same_checkpoint
 
     overrides = [
         "algo=ddpg",
@@ -164,4 +164,4 @@ def test_ddpg_run_resumes_bit_identically(tmp_path):
     train(compose_cfg([*overrides, f"resume={tmp_path / 'part'}"]), tmp_path / "part")
     a = torch.load(tmp_path / "full" / "checkpoints" / "last.pt", weights_only=True)
     b = torch.load(tmp_path / "part" / "checkpoints" / "last.pt", weights_only=True)
-    _assert_same_checkpoint(a, b)
+    assert_same_checkpoint(a, b)

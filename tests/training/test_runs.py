@@ -11,7 +11,7 @@ from bfc.agent import load_policy, read_policy
 from bfc.config import ABLATIONS
 from bfc.training import train
 
-from .helpers import ROOT, TINY, compose_cfg
+from .helpers import ROOT, TINY, assert_same_checkpoint, compose_cfg
 
 REQUIRED_TAGS = {
     "train/episode_return",
@@ -46,30 +46,6 @@ def test_tiny_run_of_every_variant(name, tmp_path):
     assert read_policy(tmp_path / "policy.pt").info["frames"] > 0
     # a checkpoint is data, never code
     torch.load(tmp_path / "checkpoints" / "last.pt", weights_only=True)
-
-
-def _flat(tree, prefix=""):
-    """Every tensor of a nested checkpoint dict, by path."""
-    if isinstance(tree, torch.Tensor):
-        return {prefix: tree}
-    if isinstance(tree, dict):
-        out = {}
-        for k, v in tree.items():
-            out.update(_flat(v, f"{prefix}/{k}"))
-        return out
-    return {}
-
-
-def _assert_same_checkpoint(a, b):
-    fa, fb = _flat(a), _flat(b)
-    assert fa.keys() == fb.keys()
-    for k in fa:
-        assert torch.equal(fa[k], fb[k]), k
-
-    def results(history):  # evaluations without their wall-clock
-        return [{k: v for k, v in h.items() if "seconds" not in k} for h in history]
-
-    assert results(a["history"]) == results(b["history"])
 
 
 def _env_state(ckpt: dict) -> dict:
@@ -113,7 +89,7 @@ def test_resumed_run_ends_like_an_uninterrupted_one(tmp_path, collector):
     # the checkpoint holds the base env's state (physics, motors, generator) beside the transforms'
     assert {"physics", "motor", "goal", "generator"} <= set(env_state["base_env._extra_state"])
     assert any(k.endswith(".frames") for k in env_state) and any(k.endswith(".values") for k in env_state)
-    _assert_same_checkpoint(a, b)  # bit-identical: env, transforms, carrier, models, optimizer, RNG
+    assert_same_checkpoint(a, b)  # bit-identical: env, transforms, carrier, models, optimizer, RNG
     # resuming a finished run collects nothing more
     again = train(compose_cfg([*overrides, f"resume={part}"]), part)
     assert again["frames"] == 4096
@@ -144,7 +120,7 @@ def test_a_corrupted_last_checkpoint_falls_back_one_step(tmp_path, capsys):
     a = torch.load(full / "checkpoints" / "last.pt", weights_only=True)
     b = torch.load(part / "checkpoints" / "last.pt", weights_only=True)
     assert a["frames"] == b["frames"] == 3072
-    _assert_same_checkpoint(a, b)
+    assert_same_checkpoint(a, b)
 
 
 def test_resume_with_no_readable_checkpoint_is_a_clear_error(tmp_path):
