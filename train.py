@@ -24,7 +24,7 @@ from omegaconf import OmegaConf
 
 import bfc.headless_gl  # noqa: F401  (before mujoco is imported: MUJOCO_GL=egl without a display, logger.video)
 from bfc import lifetime
-from bfc.cli import fail, precheck
+from bfc.cli import fail, precheck, with_launcher_defaults
 from bfc.config import check_keys, validate  # importing bfc.config registers the schema Hydra composes with
 from bfc.sweeps import objective, write_status
 
@@ -67,6 +67,7 @@ def main(cfg) -> float:
         from bfc.training import train
 
         if multirun:
+            lifetime.bind_job_to_sweep()  # a launcher's worker process ends with the sweep
             write_status(run_dir, "running", pid=os.getpid())
         summary = train(cfg, run_dir)
     except KeyboardInterrupt:
@@ -106,6 +107,8 @@ def main(cfg) -> float:
 
 if __name__ == "__main__":
     precheck("config")
+    sys.argv[1:] = with_launcher_defaults(sys.argv[1:])
+    lifetime.mark_sweep_process()
     try:
         main()
     except KeyboardInterrupt:

@@ -62,6 +62,20 @@ PLUGINS = {
 }
 
 
+# What a launcher is given unless the command line says otherwise: joblib's loky workers wait 300 s
+# for a next job, so an idle one would outlive a killed sweep by minutes; 2 s ends it with the sweep.
+LAUNCHER_DEFAULTS = {"joblib": ("+hydra.launcher.idle_worker_timeout=2",)}
+
+
+def with_launcher_defaults(argv: list[str]) -> list[str]:
+    """`argv` with LAUNCHER_DEFAULTS for the launcher it names (none that it sets itself)."""
+    overrides, _ = overrides_of(argv)
+    given = {o.split("=", 1)[0].lstrip("+") for o in overrides}
+    choice = dict(o.split("=", 1) for o in overrides if "=" in o).get("hydra/launcher")
+    extra = [d for d in LAUNCHER_DEFAULTS.get(choice, ()) if d.split("=", 1)[0].lstrip("+") not in given]
+    return [*argv, *extra]
+
+
 def check_plugins(overrides: list[str]) -> None:
     """A launcher or sweeper whose extra is not installed, or a Ray cluster address that does not
     answer: one ValueError line, before Hydra starts anything."""

@@ -73,6 +73,29 @@ def _watch_parent(parent_pid: int) -> None:
     os._exit(FAILED)
 
 
+SWEEP_PID = "BFC_SWEEP_PID"  # set by train.py: the process a sweep was started in
+_bound_to_sweep = False
+
+
+def mark_sweep_process() -> None:
+    """In train.py's own process: name it, for the jobs a launcher starts in processes of its own."""
+    os.environ[SWEEP_PID] = str(os.getpid())
+
+
+def bind_job_to_sweep() -> None:
+    """In a sweep's job: where the launcher runs it in a process the sweep's process started
+    (joblib's loky workers, submitit_local), that process ends when the sweep's does, and takes its
+    collector workers with it. A watchdog only (no parent-death signal: a launcher may start its
+    workers from a thread that ends before them). Jobs in the sweep's own process (the basic
+    launcher) or started by a cluster (Ray, SLURM) are left to it."""
+    global _bound_to_sweep
+    sweep = int(os.environ.get(SWEEP_PID, "0"))
+    if _bound_to_sweep or not sweep or sweep == os.getpid() or os.getppid() != sweep:
+        return
+    threading.Thread(target=_watch_parent, args=(sweep,), daemon=True, name="bfc-sweep-watchdog").start()
+    _bound_to_sweep = True
+
+
 class SigtermGuard:
     """While active, SIGTERM sets `requested` instead of ending the process: the training loop
     checkpoints at the end of the update in progress and raises `Preempted`. Installed only where

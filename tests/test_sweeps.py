@@ -279,3 +279,14 @@ def test_a_paused_job_is_reported_paused_and_a_resumed_then_killed_one_unfinishe
         (tmp_path / name / "summary.json").write_text(json.dumps({"frames": 1, "paused": paused}))
     states = {Path(r["run_dir"]).name: r["status"] for r in read_runs(tmp_path)}
     assert states == {"a": "paused", "b": "unfinished", "c": "finished", "d": "finished"}
+
+
+def test_joblib_idle_workers_wait_2_s_for_a_job_unless_the_command_line_says_otherwise():
+    """An idle loky worker would outlive a killed sweep by joblib's 300 s (tests/training/test_lifetime.py)."""
+    from bfc.cli import with_launcher_defaults
+
+    args = ["-m", "hydra/launcher=joblib", "seed=0,1"]
+    assert with_launcher_defaults(args) == [*args, "+hydra.launcher.idle_worker_timeout=2"]
+    mine = [*args, "+hydra.launcher.idle_worker_timeout=30"]
+    assert with_launcher_defaults(mine) == mine
+    assert with_launcher_defaults(["-m", "seed=0,1"]) == ["-m", "seed=0,1"]

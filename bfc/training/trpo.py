@@ -1,7 +1,7 @@
 """TRPO (Schulman et al. 2015), which the paper compares with PPO (figs. 5-7). TorchRL has no TRPO
 loss, so the step is built here on its pieces: the same Gaussian actor and critic as PPO, TorchRL's
 GAE (eq. 15), and a natural-gradient step on the surrogate (conjugate gradient on Fisher-vector
-products of the mean KL) scaled to the KL bound `algo.max_kl` and checked by a backtracking line
+products of the mean KL) scaled to the KL bound `algo.trpo.max_kl` and checked by a backtracking line
 search: a step is taken only if the surrogate improves and the measured KL stays within the bound.
 The critic is fitted with Adam (`algo.trpo.critic_epochs` passes of `critic_minibatches`
 minibatches, lr `optim.lr`), as in the original. It reads the `algo.trpo` section (and `optim`).

@@ -8,7 +8,6 @@ import os
 import signal
 import subprocess
 import sys
-import tempfile
 import time
 from pathlib import Path
 
@@ -17,6 +16,7 @@ import torch
 
 from bfc import lifetime
 from bfc.training import train
+from tests.process_helpers import alive, children, descendants, leftovers, name
 
 from .helpers import ROOT, TINY, as_from_a_shell, assert_same_checkpoint, compose_cfg, overriding
 
@@ -32,32 +32,6 @@ ASYNC = overriding(
     "seed=5",
     "collector.total_frames=4194304",  # a run that is killed long before it ends
 )
-
-
-def leftovers() -> set[str]:
-    """What a run could leave on the machine: shared-memory segments and multiprocessing's sockets."""
-    shm = {f"/dev/shm/{n}" for n in os.listdir("/dev/shm")} if os.path.isdir("/dev/shm") else set()
-    return shm | {str(p) for p in Path(tempfile.gettempdir()).glob("pymp-*")}
-
-
-def children(pid: int) -> list[int]:
-    found = []
-    for stat in Path("/proc").glob("[0-9]*/stat"):
-        try:
-            fields = stat.read_text().rsplit(")", 1)[1].split()
-        except OSError:
-            continue
-        if int(fields[1]) == pid:
-            found.append(int(stat.parent.name))
-    return found
-
-
-def alive(pid: int) -> bool:
-    """A process that exists and is not a zombie (a reaped or unreaped corpse holds no memory)."""
-    try:
-        return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0] != "Z"
-    except OSError:
-        return False
 
 
 def wait_for(predicate, seconds: float, what: str):
@@ -90,19 +64,32 @@ def worker_of(process: subprocess.Popen) -> int:
 pytestmark = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc")
 
 
-@pytest.mark.parametrize("sweep", [False, True], ids=["run", "sweep"])
-def test_a_worker_never_outlives_its_trainer_killed_with_sigkill(tmp_path, sweep):
+WHERE = {
+    "run": ["hydra.run.dir={dir}"],
+    "sweep": ["-m", "hydra.sweep.dir={dir}"],  # Hydra's basic launcher: the job in the sweep's process
+    "joblib sweep": ["-m", "hydra/launcher=joblib", "hydra.sweep.dir={dir}"],  # the job in a loky worker
+}
+
+
+@pytest.mark.parametrize("how", list(WHERE))
+def test_nothing_a_run_started_outlives_it_killed_with_sigkill(tmp_path, how):
+    if how == "joblib sweep":
+        pytest.importorskip("hydra_plugins.hydra_joblib_launcher")
     before = leftovers()
-    where = ["-m", f"hydra.sweep.dir={tmp_path}"] if sweep else [f"hydra.run.dir={tmp_path}"]
-    process = start([*where, *ASYNC])
-    worker = worker_of(process)
-    named = lambda: Path(f"/proc/{worker}/comm").read_text().strip() == "bfc-collector-0"  # noqa: E731
-    wait_for(named, 30, "the worker's name in ps and top")
+    process = start([*(a.format(dir=tmp_path) for a in WHERE[how]), *ASYNC])
+
+    def collectors():
+        if process.poll() is not None:
+            pytest.fail(f"train.py ended ({process.returncode}): {process.stderr.read()[-3000:]}")
+        return [p for p in descendants(process.pid) if name(p) == "bfc-collector-0"]  # named in ps and top
+
+    wait_for(collectors, 120, "the collector worker's start")
     wait_for(lambda: list(tmp_path.rglob("tb/events*")), 120, "training")
+    tree = descendants(process.pid)
     process.kill()
     process.wait(timeout=30)
-    wait_for(lambda: not alive(worker), 10, "the orphaned worker's exit")
-    assert leftovers() <= before
+    wait_for(lambda: not any(alive(p) for p in tree), 10, "the exit of every process the run started")
+    wait_for(lambda: leftovers() <= before, 10, "the removal of the launcher's shared memory")
 
 
 def test_a_killed_worker_ends_the_run_with_one_line_and_its_checkpoint_resumes_bit_for_bit(tmp_path):
