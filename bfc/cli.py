@@ -55,6 +55,7 @@ PLUGINS = {
     "hydra/launcher": {
         "joblib": ("hydra_plugins.hydra_joblib_launcher", "joblib"),
         "ray": ("hydra_plugins.hydra_ray_launcher", "ray"),
+        "ray_aws": ("hydra_plugins.hydra_ray_launcher", "ray"),
         "submitit_local": ("hydra_plugins.hydra_submitit_launcher", "submitit"),
         "submitit_slurm": ("hydra_plugins.hydra_submitit_launcher", "submitit"),
     },
@@ -84,6 +85,8 @@ def check_plugins(overrides: list[str]) -> None:
     values = dict(o.split("=", 1) for o in overrides if "=" in o)
     for group, options in PLUGINS.items():
         choice = values.get(group)
+        if choice is not None and choice != "basic" and choice not in options:  # basic: Hydra's own
+            raise ValueError(f"{group}={choice} names no {group.split('/')[1]}; available: basic, {', '.join(options)}")
         if choice in options:
             module, extra = options[choice]
             if importlib.util.find_spec(module) is None:

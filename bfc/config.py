@@ -17,7 +17,10 @@ its old spelling with one line naming the new one.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
+import types
+import typing
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -493,12 +496,80 @@ def check_overrides(overrides, config_name: str = "config") -> None:
             if bad and not o.is_delete():
                 raise ValueError(f"{key}={bad[0]} is not a config of conf/{key}/; available: {', '.join(groups[key])}")
             continue
-        node, parts = schema, key.split(".")
+        node, parts, parent = schema, key.split("."), None
         for i, part in enumerate(parts):
             if part not in _schema_keys(node):
                 where = ".".join(parts[:i]) or "the top level"
                 raise ValueError(_unknown_message(key, where, _schema_keys(node), config_name))
-            node = getattr(node, part)
+            parent, node = node, getattr(node, part)
+        if not o.is_delete() and parent is not None:
+            for value in _values(o):
+                _check_value(key, _field_types(type(parent))[parts[-1]], value)
+
+
+def _values(override) -> list:
+    """The values an override gives (each option of a sweep; none for a range or interval sweep,
+    which Hydra and the sweeper check)."""
+    if not override.is_sweep_override():
+        return [override.value()]
+    try:
+        return list(override.sweep_iterator())
+    except Exception:  # noqa: BLE001 - an interval sweep: its bounds are the sweeper's
+        return []
+
+
+@functools.cache
+def _field_types(cls) -> dict:
+    return typing.get_type_hints(cls)
+
+
+_TYPE_NAMES = {bool: "true or false", int: "an integer", float: "a number", str: "a string"}
+
+
+def _parses(kind, v) -> bool:
+    try:
+        kind(v)
+    except ValueError:
+        return False
+    return True
+
+
+# What OmegaConf converts to each type on merging (a quoted '3' is an integer, 1 is true)
+_FITS = {
+    bool: lambda v: (
+        isinstance(v, (bool, int))
+        or (isinstance(v, str) and v.lower() in ("true", "false", "yes", "no", "on", "off", "y", "n"))
+    ),
+    int: lambda v: (isinstance(v, int) and not isinstance(v, bool)) or (isinstance(v, str) and _parses(int, v)),
+    float: lambda v: (
+        (isinstance(v, (int, float)) and not isinstance(v, bool)) or (isinstance(v, str) and _parses(float, v))
+    ),
+    str: lambda v: not isinstance(v, (list, dict)),
+}
+
+
+def _check_value(key: str, tp, value) -> None:
+    """A value of the wrong type for its field, or a plain value for a whole section: one line
+    naming the key and what it takes (Hydra's own report is 5-12 lines)."""
+    if isinstance(value, str) and "${" in value:
+        return  # an interpolation: resolved later
+    origin, args = typing.get_origin(tp), typing.get_args(tp)
+    if origin in (typing.Union, types.UnionType):
+        if value is None and type(None) in args:
+            return
+        rest = [a for a in args if a is not type(None)]
+        tp, origin = (rest[0], typing.get_origin(rest[0])) if len(rest) == 1 else (Any, None)
+    if dataclasses.is_dataclass(tp):
+        if not isinstance(value, dict):
+            fields = ", ".join(f"{key}.{f}" for f in _schema_keys(tp)[:4])
+            raise ValueError(f"{key} is a config section, not a value (got {value!r}): set its keys ({fields}, ...)")
+        return
+    if value is None:
+        raise ValueError(f"{key} cannot be null; it takes {_TYPE_NAMES.get(tp, 'a value')}")
+    if tp in _FITS and not _FITS[tp](value):
+        raise ValueError(f"{key} takes {_TYPE_NAMES[tp]}, got {value!r}")
+    if (origin in (list, tuple) or tp in (list, tuple)) and not isinstance(value, list):
+        raise ValueError(f"{key} takes a list ([a, b, ...]), got {value!r}")
 
 
 # Each paper preset trains one algorithm (conf/preset/paper*.yaml): the paper's widths and

@@ -126,6 +126,34 @@ def test_a_moved_key_fails_with_its_new_spelling(override, moved_to):
     assert line == f"error: {override.lstrip('+').split('=')[0]} has moved: it is {moved_to} now"
 
 
+@pytest.mark.parametrize(
+    "override, message",
+    [
+        ("model=3", "error: model is a config section, not a value (got 3): set its keys (model.actor_hidden"),
+        ("env=foo", "error: env is a config section, not a value (got 'foo'): set its keys (env.num_envs"),
+        ("optim=fast", "error: optim is a config section, not a value (got 'fast')"),
+        ("loss.epochs=2.5", "error: loss.epochs takes an integer, got 2.5"),
+        ("seed=0,abc", "error: seed takes an integer, got 'abc'"),
+        ("loss.gamma=null", "error: loss.gamma cannot be null; it takes a number"),
+        ("logger.video=maybe", "error: logger.video takes true or false, got 'maybe'"),
+        ("model.actor_hidden=64", "error: model.actor_hidden takes a list ([a, b, ...]), got 64"),
+        ("hydra/launcher=nosuch", "error: hydra/launcher=nosuch names no launcher; available: basic, joblib, ray"),
+        ("hydra/sweeper=nosuch", "error: hydra/sweeper=nosuch names no sweeper; available: basic, optuna"),
+    ],
+)
+def test_a_value_of_the_wrong_type_a_section_or_an_unknown_plugin_is_one_line(override, message):
+    assert one_line_error(run_cli(override)).startswith(message)
+
+
+def test_values_omegaconf_converts_still_pass():
+    """What OmegaConf merges stays accepted: a quoted number, 1 for true, a dict for a section, a
+    null where optional, sweeps."""
+    from bfc.config import check_overrides
+
+    check_overrides(["loss.epochs='3'", "logger.video=1", "model={actor_hidden:[64,64]}", "optim.desired_kl=null"])
+    check_overrides(["optim.lr=1e-3", "optim.lr=interval(0.0005,0.003)", "seed=range(0,3)", "noise.std=[0.1,0.2]"])
+
+
 def test_bad_override_syntax_is_one_line():
     assert "cannot parse the overrides" in one_line_error(run_cli("env.goal=[0,0"))
 
