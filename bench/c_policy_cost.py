@@ -10,8 +10,7 @@ Prints, for the policy's exported header:
 - microseconds per call of the compiled `bfc_policy_step` on this machine: a C timing loop
   (`cc -std=c99 -O2`, clock_gettime around `--calls` calls, each fed the previous call's command
   and a moving position so that no call can be hoisted; best of 5 repeats);
-- an ESTIMATE for a 168 MHz Cortex-M4F (STM32F4 class), from the counts alone, not measured: the
-  cycles-per-multiply-add assumptions are printed beside each figure;
+- (the cost on a Cortex-M4F, the Crazyflie's core, is bench/cortex_m4_cost.py's: measured there);
 - the parity with the torch policy on the 2000 rows tests/test_export.py checks the ONNX model on,
   and the success of `--flights` protocol starts flown through `CController` and by the torch policy.
 """
@@ -70,14 +69,6 @@ int main(int argc, char **argv)
     return 0;
 }
 """
-M4_HZ = 168e6
-# cycles per multiply-add of the dense loops on a Cortex-M4F: 1 (optimistic: a hand-scheduled
-# kernel, operands in registers), 4 (plausible for this C compiled by GCC -O2: two VLDR and a
-# VMLA.F32 or VMUL+VADD per MAC plus loop overhead, weights in flash behind the ART accelerator)
-M4_CYCLES_PER_MAC = (1, 4)
-M4_CYCLES_PER_TRANSCENDENTAL = 100  # sinf, cosf, sqrtf, tanhf, expm1f from a libm, order of magnitude
-
-
 def counts(policy: Path) -> dict:
     spec, net = load_policy(policy)
     linears = [m for m in net.mlp if isinstance(m, nn.Linear)]
@@ -145,14 +136,7 @@ def main() -> None:
         print(f"header: {header.stat().st_size / 1024:.0f} KiB of C")
         ns = time_calls(header, args.calls)
         print(f"here: {ns / 1000:.2f} us per call ({args.calls} calls in a C loop, best of 5)")
-        for cycles in M4_CYCLES_PER_MAC:
-            total = cycles * c["macs"] + M4_CYCLES_PER_TRANSCENDENTAL * c["transcendental"]
-            us = total / M4_HZ * 1e6
-            print(
-                f"ESTIMATE Cortex-M4F @ 168 MHz, {cycles} cycle(s)/MAC + "
-                f"{M4_CYCLES_PER_TRANSCENDENTAL} cycles/transcendental: {total} cycles = {us:.0f} us per call, "
-                f"{100 * us * spec.control_hz / 1e6:.1f}% of the {spec.control_hz:g} Hz control period"
-            )
+        print("on a Cortex-M4F: python bench/cortex_m4_cost.py (instructions counted on an emulated one)")
         diff, hovers = parity(policy, header)
         print(f"parity, 2000 rows of tests/test_export.py: max |C - torch| = {diff:.5f} rad/s ({hovers:.1e} hover)")
         if args.flights:

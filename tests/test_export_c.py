@@ -13,6 +13,7 @@ from torch import nn
 
 from bfc.agent import PolicySpec, load_policy, save_policy
 from bfc.export import CController, export_c, main
+from tests import cortex_m4
 from tests.export_helpers import (
     PRETRAINED,
     ROOT,
@@ -104,28 +105,45 @@ def headers(tmp_path_factory):
     }
 
 
-def run_harness(header, rows: np.ndarray) -> np.ndarray:
+def run_harness(header, rows: np.ndarray, target: str = "host") -> np.ndarray:
+    """The harness's 35 outputs per row, built for and run on `target`: this machine (`cc`) or an
+    emulated Cortex-M4F (tests/cortex_m4.py), from the same C."""
     harness = header.parent / "harness.c"
     harness.write_text(HARNESS)
-    binary = header.parent / "harness"
-    compiled = subprocess.run(
-        [CC, *CFLAGS, str(harness), "-o", str(binary), "-lm"], capture_output=True, text=True, timeout=300
-    )
-    assert compiled.returncode == 0, compiled.stderr  # no warning either (-Werror)
     rows.astype(np.float32).tofile(header.parent / "rows.bin")
-    ran = subprocess.run([str(binary), "rows.bin", "out.bin"], cwd=header.parent, timeout=120)
-    assert ran.returncode == 0
+    if target == "cortex-m4":
+        cortex_m4.run(cortex_m4.build([harness], header.parent / "harness.elf", CFLAGS), header.parent)
+    else:
+        binary = header.parent / "harness"
+        compiled = subprocess.run(
+            [CC, *CFLAGS, str(harness), "-o", str(binary), "-lm"], capture_output=True, text=True, timeout=300
+        )
+        assert compiled.returncode == 0, compiled.stderr  # no warning either (-Werror)
+        ran = subprocess.run([str(binary), "rows.bin", "out.bin"], cwd=header.parent, timeout=120)
+        assert ran.returncode == 0
     return np.fromfile(header.parent / "out.bin", dtype=np.float32).reshape(len(rows), 35)
 
 
-@needs_cc
+needs_cortex_m4 = pytest.mark.skipif(bool(cortex_m4.MISSING), reason=str(cortex_m4.MISSING))
+TARGETS = [pytest.param("host", marks=needs_cc), pytest.param("cortex-m4", marks=[needs_cc, needs_cortex_m4])]
+
+
+@pytest.mark.parametrize("target", TARGETS)
 @pytest.mark.parametrize("name", ["pretrained", "tiny"])
-def test_compiled_header_matches_the_torch_policy(headers, name):
+def test_compiled_header_matches_the_torch_policy(headers, name, target):
+    """On this machine and on the Crazyflie's instruction set (an emulated Cortex-M4F, whose libm
+    and float code differ from the host's in the last bits: it is held to the same bound against
+    torch, and to it against the host build)."""
     policy_path, header = headers[name]
     spec, _ = load_policy(policy_path)
     hover, top = spec.nominal_airframe.hover_speed, spec.nominal_airframe.max_rotor_speed
     odometry, goal, previous, integral, _ = parity_rows(spec)
-    out = run_harness(header, torch.cat([odometry, goal, previous, integral], -1).numpy())
+    rows = torch.cat([odometry, goal, previous, integral], -1).numpy()
+    out = run_harness(header, rows, target)
+    if target == "cortex-m4":
+        host = run_harness(header, rows, "host")
+        assert hover_speed_difference(out[:, 0:4], host[:, 0:4], spec) <= TOLERANCE
+        assert np.abs(out[:, 4:7] - host[:, 4:7]).max() <= 1e-6  # the integral: a few flops
 
     history = torch.full((2000, spec.command_history, 4), hover) if spec.command_history else None  # the harness's
     expected, _ = torch_reference(policy_path, odometry, goal, previous, integral, history)
