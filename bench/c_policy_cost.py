@@ -69,6 +69,8 @@ int main(int argc, char **argv)
     return 0;
 }
 """
+
+
 def counts(policy: Path) -> dict:
     spec, net = load_policy(policy)
     linears = [m for m in net.mlp if isinstance(m, nn.Linear)]

@@ -29,7 +29,7 @@ from hydra.core.config_store import ConfigStore
 from omegaconf import DictConfig, OmegaConf
 
 from bfc.checks import check
-from bfc.envs.params import AirframeParams, RandomizeParams, RewardParams, StartParams, TerminationParams
+from bfc.envs.params import GOAL, AirframeParams, RandomizeParams, RewardParams, StartParams, TerminationParams
 
 CONF_DIR = Path(__file__).resolve().parents[1] / "conf"  # the repository's Hydra configs
 
@@ -54,7 +54,7 @@ class EnvConfig:
     # always fly the reference simulator (0.002 s); docs/env.md, "Physics step"
     physics_dt: float | None = None
     episode_seconds: float = 5.0
-    goal: list[float] = field(default_factory=lambda: [0.0, 0.0, 1.5])
+    goal: list[float] = field(default_factory=lambda: list(GOAL))
     start_motors: str = "rest"
     num_threads: int | None = None  # MuJoCo rollout threads; None = all cores
     airframe: AirframeParams = field(default_factory=AirframeParams)
@@ -364,7 +364,7 @@ class EvaluateConfig:
     runs: str | None = None  # suite=paper: a directory of training runs for Table 2 and learning curves
     baselines: list[str] = field(default_factory=lambda: ["mpc", "lee"])  # suites: flown beside it
     figures: bool = True  # single evaluation: flight figures beside results.json
-    goal: list[float] = field(default_factory=lambda: [0.0, 0.0, 1.5])  # single evaluation
+    goal: list[float] = field(default_factory=lambda: list(GOAL))  # single evaluation
     eval: TestProtocolConfig = field(default_factory=TestProtocolConfig)
     noise: NoiseConfig = field(default_factory=NoiseConfig)  # single evaluation: seen by the controller only
     sim: str = "mujoco"  # the simulator flown: mujoco (bfc's env) | rotorpy (docs/evaluation.md)

@@ -19,6 +19,7 @@ import numpy as np
 from torch import nn
 
 from bfc.agent.actor import ACTIVATIONS
+from bfc.agent.atomic import atomic_write, check_output_path
 from bfc.agent.policy_file import POLICY_FORMAT, load_policy
 from bfc.agent.spec import PolicySpec
 from bfc.transforms import MotorSpeedAction, PolicyObservation
@@ -42,14 +43,6 @@ def c_float(value: float) -> str:
     if not any(ch in text for ch in ".e"):
         text += ".0"
     return text + "f"
-
-
-def _check_output_path(out_path: Path) -> None:
-    if out_path.is_dir():
-        raise IsADirectoryError(f"the output path {out_path} is a directory: give a file name such as policy.h")
-    blocking = next((p for p in out_path.parents if p.exists() and not p.is_dir()), None)
-    if blocking is not None:
-        raise NotADirectoryError(f"cannot write {out_path}: {blocking} is a file, not a directory")
 
 
 def _layers(spec: PolicySpec, net) -> list[tuple[np.ndarray, np.ndarray, str | None, float]]:
@@ -511,17 +504,7 @@ def export_c(policy_path, out_path) -> Path:
     written. Returns the path written (written atomically).
     """
     out_path = Path(out_path)
-    _check_output_path(out_path)
+    check_output_path(out_path, "policy.h")
     spec, net = load_policy(policy_path)
     text = generate_c(spec, net, source=Path(policy_path).name, name=out_path.name)
-    tmp = out_path.with_name(out_path.name + ".tmp")
-    try:
-        out_path.parent.mkdir(parents=True, exist_ok=True)
-        tmp.write_text(text)
-        tmp.replace(out_path)
-    except OSError as err:
-        raise OSError(f"cannot write the C header to {out_path}: {err.strerror or err}") from err
-    finally:
-        if tmp.parent.is_dir():
-            tmp.unlink(missing_ok=True)
-    return out_path
+    return atomic_write(out_path, lambda tmp: tmp.write_text(text), "the C header")

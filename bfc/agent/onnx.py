@@ -36,6 +36,7 @@ import torch
 from torch import nn
 
 from bfc.agent.actor import GaussianActor
+from bfc.agent.atomic import atomic_write, check_output_path
 from bfc.agent.fed_back import FedBackController
 from bfc.agent.policy_file import POLICY_FORMAT, load_policy
 from bfc.agent.spec import PolicySpec
@@ -122,11 +123,7 @@ def export_onnx(policy_path, onnx_path, opset: int | None = None) -> Path:
     """
     onnx = _import_onnx()
     onnx_path = Path(onnx_path)
-    if onnx_path.is_dir():
-        raise IsADirectoryError(f"the output path {onnx_path} is a directory: give a file name such as policy.onnx")
-    blocking = next((p for p in onnx_path.parents if p.exists() and not p.is_dir()), None)
-    if blocking is not None:
-        raise NotADirectoryError(f"cannot write {onnx_path}: {blocking} is a file, not a directory")
+    check_output_path(onnx_path, "policy.onnx")
     if opset is not None and (not isinstance(opset, int) or opset < 11):
         raise ValueError(f"opset must be an int >= 11 (Clip with bounds as inputs), got {opset!r}")
     module, spec = export_module(policy_path)
@@ -192,17 +189,7 @@ def export_onnx(policy_path, onnx_path, opset: int | None = None) -> Path:
         entry = model.metadata_props.add()
         entry.key, entry.value = key, value
     onnx.checker.check_model(model)
-    tmp = onnx_path.with_name(onnx_path.name + ".tmp")
-    try:
-        onnx_path.parent.mkdir(parents=True, exist_ok=True)
-        onnx.save(model, tmp)
-        tmp.replace(onnx_path)
-    except OSError as err:
-        raise OSError(f"cannot write the ONNX model to {onnx_path}: {err.strerror or err}") from err
-    finally:
-        if tmp.parent.is_dir():
-            tmp.unlink(missing_ok=True)
-    return onnx_path
+    return atomic_write(onnx_path, lambda tmp: onnx.save(model, tmp), "the ONNX model")
 
 
 def read_metadata(onnx_path) -> dict:

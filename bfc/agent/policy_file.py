@@ -18,6 +18,7 @@ from pathlib import Path
 import torch
 
 from bfc.agent.actor import GaussianActor
+from bfc.agent.atomic import atomic_write
 from bfc.agent.spec import PolicySpec
 
 POLICY_FORMAT = "bfc-policy-v2"
@@ -37,12 +38,8 @@ class PolicyFile:
 
 
 def atomic_save(obj, path) -> None:
-    """torch.save to a temporary name beside `path`, then rename: a reader never sees half a file."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(path.name + ".tmp")
-    torch.save(obj, tmp)
-    tmp.replace(path)
+    """torch.save, atomically (bfc.agent.atomic): a reader never sees half a file."""
+    atomic_write(path, lambda tmp: torch.save(obj, tmp))
 
 
 def save_policy(path, spec: PolicySpec, net: GaussianActor, info: dict | None = None) -> None:

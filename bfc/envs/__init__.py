@@ -4,9 +4,10 @@ The parameter dataclasses import nothing heavy; `QuadrotorEnv` (torch, TorchRL, 
 imported on first use, so that a config can be checked before those load (bfc.config).
 """
 
-from bfc.envs.params import AirframeParams, RandomizeParams, RewardParams, StartParams, TerminationParams
+from bfc.envs.params import GOAL, AirframeParams, RandomizeParams, RewardParams, StartParams, TerminationParams
 
 __all__ = [
+    "GOAL",
     "REFERENCE_PHYSICS_DT",
     "AirframeParams",
     "QuadrotorEnv",

@@ -13,6 +13,8 @@ from dataclasses import dataclass, fields
 
 from bfc.checks import check as _check
 
+GOAL = (0.0, 0.0, 1.5)  # m: the paper's hover goal, every flight's and training's default
+
 
 @dataclass
 class AirframeParams:

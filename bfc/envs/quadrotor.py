@@ -33,6 +33,7 @@ from bfc import keys
 from bfc.checks import check as _check
 from bfc.envs.params import (  # the task's parameters live with the airframe's: no torch to check a config
     AIRFRAME_RANGES,
+    GOAL,
     ROTOR_DIRECTIONS,
     ROTOR_YAW_SIGNS,
     AirframeParams,
@@ -117,7 +118,7 @@ class QuadrotorEnv(EnvBase):
         control_hz: float = 100.0,
         physics_dt: float = REFERENCE_PHYSICS_DT,
         episode_seconds: float = 5.0,
-        goal: tuple[float, float, float] = (0.0, 0.0, 1.5),
+        goal: tuple[float, float, float] = GOAL,
         airframe: AirframeParams | dict | None = None,
         reward: RewardParams | dict | None = None,
         termination: TerminationParams | dict | None = None,

@@ -11,7 +11,7 @@ from tensordict import TensorDict
 from tensordict.nn import TensorDictModuleBase
 
 from bfc.agent import load_policy
-from bfc.envs import REFERENCE_PHYSICS_DT, AirframeParams
+from bfc.envs import GOAL, REFERENCE_PHYSICS_DT, AirframeParams
 from bfc.evaluation.flights import run_flights
 from bfc.factory import make_flight_env
 
@@ -40,7 +40,7 @@ PROTOCOL_HZ = 250.0  # the paper's control rate, for controllers that do not rec
 def fly(
     controller,
     starts,
-    goal=(0.0, 0.0, 1.5),
+    goal=GOAL,
     seconds: float = 10.0,
     noise=None,
     seed: int = 0,

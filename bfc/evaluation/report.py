@@ -18,6 +18,7 @@ import torch
 from tensordict import TensorDict
 
 from bfc.config import TestProtocolConfig
+from bfc.envs import GOAL
 from bfc.envs.rotations import euler_to_quat
 from bfc.evaluation.flying import fly
 from bfc.evaluation.metrics import summarize, tilt_degrees
@@ -114,7 +115,7 @@ def policy_sections(controller, out: Path, protocol: TestProtocolConfig) -> tupl
         "",
     ]
     level = torch.zeros(1, 12)
-    level[0, 2] = 1.5
+    level[0, :3] = torch.tensor(GOAL)  # level, at rest, at the hover goal
     for label, course, seconds, fname in (
         ("sparse (4 waypoints, 5 s each)", SPARSE_COURSE, 20.0, "waypoints_sparse.png"),
         ("dense (a circle of 24 waypoints, 0.75 s each)", dense_course(), 18.0, "waypoints_dense.png"),

@@ -37,7 +37,8 @@ from tensordict import TensorDict
 
 from bfc import keys
 from bfc.agent import load_policy
-from bfc.envs import REFERENCE_PHYSICS_DT, AirframeParams, TerminationParams
+from bfc.config import ROTORPY_AIRFRAMES
+from bfc.envs import GOAL, REFERENCE_PHYSICS_DT, AirframeParams, TerminationParams
 from bfc.envs.params import ROTOR_DIRECTIONS, ROTOR_YAW_SIGNS
 from bfc.envs.quadrotor import GROUND_HEIGHT, HULL_HALF_SIZE, build_model
 from bfc.envs.rotations import euler_to_quat, quat_to_euler
@@ -46,7 +47,6 @@ from bfc.evaluation.flying import PROTOCOL_HZ, is_module, is_onnx_path, onnx_con
 from bfc.evaluation.protocol import TEST_SEED
 from bfc.evaluation.suites import CONDITIONS, START_SETS, horizontal_wind, robust_results
 
-AIRFRAMES = ("bfc", "rotorpy")
 INSTALL_HINT = 'sim=rotorpy needs RotorPy: pip install -e ".[rotorpy]"'
 # RotorPy rotor i flies bfc motor ORDER[i] (bfc: 0 front, 1 left, 2 back, 3 right)
 _ORDER = {"bfc": (0, 1, 2, 3), "rotorpy": (0, 3, 2, 1)}  # X: r1 front-left, r2 front-right, ...
@@ -127,8 +127,8 @@ def hummingbird_params(nominal: AirframeParams, flown: AirframeParams) -> dict:
 
 
 def flight_params(kind: str, nominal: AirframeParams, flown: AirframeParams) -> dict:
-    if kind not in AIRFRAMES:
-        raise ValueError(f"rotorpy_airframe must be one of {', '.join(AIRFRAMES)}, got {kind!r}")
+    if kind not in ROTORPY_AIRFRAMES:
+        raise ValueError(f"rotorpy_airframe must be one of {', '.join(ROTORPY_AIRFRAMES)}, got {kind!r}")
     return bfc_params(flown) if kind == "bfc" else hummingbird_params(nominal, flown)
 
 
@@ -177,8 +177,8 @@ class RotorPyQuads:
     def __init__(self, params: dict, n: int, dt: float, airframe: str = "bfc", wind=None):
         from rotorpy.vehicles.multirotor import BatchedMultirotor, BatchedMultirotorParams
 
-        if airframe not in AIRFRAMES:
-            raise ValueError(f"rotorpy_airframe must be one of {', '.join(AIRFRAMES)}, got {airframe!r}")
+        if airframe not in ROTORPY_AIRFRAMES:
+            raise ValueError(f"rotorpy_airframe must be one of {', '.join(ROTORPY_AIRFRAMES)}, got {airframe!r}")
         self.n, self.dt, self.params = int(n), float(dt), params
         f64, cpu = torch.float64, torch.device("cpu")
         self.state = {k: torch.zeros(n, 3, dtype=f64) for k in ("x", "v", "w", "wind")}
@@ -311,7 +311,7 @@ def _resolve(controller, control_hz):
 def fly_rotorpy(
     controller,
     starts,
-    goal=(0.0, 0.0, 1.5),
+    goal=GOAL,
     seconds: float = 10.0,
     airframe: str = "bfc",
     flown: dict | None = None,
