@@ -43,12 +43,28 @@ def hover_speed_difference(got, expected, spec) -> float:
     return float((got - expected).abs()[judged].max()) / hover
 
 
-def tiny_policy(path, action_map="speed", normalize=False):
+# Observation constants of a policy of its own (none of them the defaults): the exports must read
+# them from its file
+SCALED = {
+    "position_clip": 0.5,
+    "velocity_scale": 0.2,
+    "angular_velocity_scale": 0.3,
+    "acceleration_scale": 0.1,
+    "integral_radius": 0.6,
+    "integral_limit": 0.2,
+    "integral_scale": 2.0,
+}
+
+
+def tiny_policy(path, action_map="speed", normalize=False, scales=None):
     """A random 2x16 ELU policy with accelerations in its observation, on a heavier airframe
-    (normalize=True: the observation through running statistics, as the paper preset trains)."""
+    (normalize=True: the observation through running statistics, as the paper preset trains;
+    scales: observation constants of its own, with the position integral among its inputs)."""
     spec = PolicySpec(
         normalize_observation=normalize,
         include_acceleration=True,
+        position_integral=scales is not None,
+        observation_scales=scales or {},
         action_map=action_map,
         hidden=(16, 16),
         activation="elu",

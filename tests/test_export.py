@@ -17,6 +17,7 @@ from bfc.export import OnnxController, export_onnx, main, read_metadata  # noqa:
 from tests.export_helpers import (  # noqa: E402
     PRETRAINED,
     ROOT,
+    SCALED,
     TOLERANCE,
     hover_speed_difference,
     parity_rows,
@@ -31,14 +32,16 @@ def models(tmp_path_factory):
     d = tmp_path_factory.mktemp("onnx")
     tiny = tiny_policy(d / "tiny.pt")
     normalized = tiny_policy(d / "normalized.pt", normalize=True)
+    scaled = tiny_policy(d / "scaled.pt", scales=SCALED)
     return {
         "pretrained": (PRETRAINED, export_onnx(PRETRAINED, d / "pretrained.onnx")),
         "tiny": (tiny, export_onnx(tiny, d / "tiny.onnx")),
         "normalized": (normalized, export_onnx(normalized, d / "normalized.onnx")),
+        "scaled": (scaled, export_onnx(scaled, d / "scaled.onnx")),
     }
 
 
-@pytest.mark.parametrize("name", ["pretrained", "tiny", "normalized"])
+@pytest.mark.parametrize("name", ["pretrained", "tiny", "normalized", "scaled"])
 def test_onnx_matches_the_torch_policy(models, name):
     policy_path, onnx_path = models[name]
     spec, _ = load_policy(policy_path)

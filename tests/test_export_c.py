@@ -17,6 +17,7 @@ from tests import cortex_m4
 from tests.export_helpers import (
     PRETRAINED,
     ROOT,
+    SCALED,
     TOLERANCE,
     hover_speed_difference,
     parity_rows,
@@ -99,9 +100,11 @@ int main(int argc, char **argv)
 def headers(tmp_path_factory):
     d = tmp_path_factory.mktemp("c")
     tiny = tiny_policy(d / "tiny.pt")
+    scaled = tiny_policy(d / "scaled.pt", scales=SCALED)
     return {
         "pretrained": (PRETRAINED, export_c(PRETRAINED, d / "pretrained" / "policy.h")),
         "tiny": (tiny, export_c(tiny, d / "tiny" / "policy.h")),
+        "scaled": (scaled, export_c(scaled, d / "scaled" / "policy.h")),
     }
 
 
@@ -129,7 +132,7 @@ TARGETS = [pytest.param("host", marks=needs_cc), pytest.param("cortex-m4", marks
 
 
 @pytest.mark.parametrize("target", TARGETS)
-@pytest.mark.parametrize("name", ["pretrained", "tiny"])
+@pytest.mark.parametrize("name", ["pretrained", "tiny", "scaled"])
 def test_compiled_header_matches_the_torch_policy(headers, name, target):
     """On this machine and on the Crazyflie's instruction set (an emulated Cortex-M4F, whose libm
     and float code differ from the host's in the last bits: it is held to the same bound against

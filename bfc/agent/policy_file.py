@@ -5,6 +5,10 @@ A policy file is data, never code: a dict of tensors, numbers and strings that l
 
     {"format": "bfc-policy-v2", "spec": PolicySpec.to_dict(), "state_dict": GaussianActor's, "info": {...}}
 
+The spec holds every constant the policy's maps use, the observation's scales included; a v2 file
+written before those were stored loads with the values it was trained with
+(LEGACY_OBSERVATION_SCALES).
+
 It is written atomically (a temporary name, then a rename). Files of the earlier format
 (`bfc-policy-v1`: `model`, `env` and `observation` dicts) are read by `_read_v1`, the one legacy
 reader; anything else is refused with one line naming what was found.
@@ -22,6 +26,18 @@ from bfc.agent.atomic import atomic_write
 from bfc.agent.spec import PolicySpec
 
 POLICY_FORMAT = "bfc-policy-v2"
+# The observation constants every file written before they were stored was trained with (files
+# whose spec has no `observation_scales`: v1, and v2 before it): frozen here, not read from the
+# defaults, so that a new default never changes an old policy.
+LEGACY_OBSERVATION_SCALES = {
+    "position_clip": 3.0,
+    "velocity_scale": 0.5,
+    "angular_velocity_scale": 0.1,
+    "acceleration_scale": 0.05,
+    "integral_radius": 0.3,
+    "integral_limit": 0.5,
+    "integral_scale": 4.0,
+}
 
 
 @dataclass
@@ -67,7 +83,8 @@ def read_policy(path) -> PolicyFile:
     found = payload.get("format") if isinstance(payload, dict) else None
     try:
         if found == POLICY_FORMAT:
-            policy = PolicyFile(PolicySpec.from_dict(payload["spec"]), payload["state_dict"], payload.get("info", {}))
+            spec = {"observation_scales": LEGACY_OBSERVATION_SCALES, **payload["spec"]}  # stored ones win
+            policy = PolicyFile(PolicySpec.from_dict(spec), payload["state_dict"], payload.get("info", {}))
         elif found == "bfc-policy-v1":
             policy = _read_v1(payload)
         else:
@@ -103,6 +120,7 @@ def _read_v1(payload: dict) -> PolicyFile:
         squash=bool(model.get("squash", False)),
         control_hz=float(env["control_hz"]),
         airframe=dict(env.get("airframe") or {}),
+        observation_scales=LEGACY_OBSERVATION_SCALES,
     )
     if spec.observation_size != int(observation["size"]):
         raise ValueError(f"its observation size {observation['size']} does not match its settings")

@@ -15,7 +15,14 @@ from dataclasses import asdict, dataclass, field, fields
 from bfc.agent.actor import ACTIVATIONS, GaussianActor
 from bfc.checks import check
 from bfc.envs import AirframeParams
-from bfc.transforms import ACTION_MAPS, OBSERVATIONS, MotorSpeedAction, PolicyObservation, observation_size
+from bfc.transforms import (
+    ACTION_MAPS,
+    OBSERVATION_SCALES,
+    OBSERVATIONS,
+    MotorSpeedAction,
+    PolicyObservation,
+    observation_size,
+)
 from bfc.transforms.observation import check_history
 
 
@@ -35,6 +42,9 @@ class PolicySpec:
     normalize_observation: bool = False
     control_hz: float = 100.0  # the rate the policy was trained at, and is flown at
     airframe: dict = field(default_factory=dict)  # the nominal airframe: AirframeParams overrides
+    # the observation's scales, clip and integral constants (all seven, OBSERVATION_SCALES's names;
+    # given ones override the defaults): part of the policy, so its file and exports carry them
+    observation_scales: dict = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         check(self.observation in OBSERVATIONS, "model.observation", " or ".join(OBSERVATIONS), self.observation)
@@ -72,6 +82,12 @@ class PolicySpec:
         self.normalize_observation = bool(self.normalize_observation)
         self.airframe = dict(self.airframe or {})
         self.nominal_airframe  # noqa: B018 - validates the overrides
+        given = dict(self.observation_scales or {})
+        unknown = sorted(set(given) - set(OBSERVATION_SCALES))
+        check(not unknown, "observation_scales", f"among {', '.join(OBSERVATION_SCALES)}", unknown)
+        self.observation_scales = {k: float(given.get(k, v)) for k, v in OBSERVATION_SCALES.items()}
+        for k, v in self.observation_scales.items():
+            check(math.isfinite(v) and v > 0, f"observation_scales.{k}", "> 0", v)
 
     @classmethod
     def from_config(cls, cfg) -> PolicySpec:
@@ -146,4 +162,5 @@ class PolicySpec:
             dt=1.0 / self.control_hz if dt is None else dt,
             kind=self.observation,
             command_history=self.command_history,
+            **self.observation_scales,
         )

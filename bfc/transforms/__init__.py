@@ -6,7 +6,7 @@ from bfc.transforms.css import ControlledStartingState
 from bfc.transforms.jd import JumpingDistribution
 from bfc.transforms.latency import ActionDelay, ObservationDelay
 from bfc.transforms.noise import GaussianOdometryNoise, OdometryNoise, OUOdometryNoise, element_mask
-from bfc.transforms.observation import OBSERVATIONS, PolicyObservation, observation_size
+from bfc.transforms.observation import OBSERVATION_SCALES, OBSERVATIONS, PolicyObservation, observation_size
 from bfc.transforms.starts import GivenStarts
 from bfc.transforms.tdts import TimeDependentTerminalState
 
@@ -15,6 +15,7 @@ __all__ = [
     "ObservationDelay",
     "ACTION_MAPS",
     "OBSERVATIONS",
+    "OBSERVATION_SCALES",
     "ControlledStartingState",
     "GaussianOdometryNoise",
     "JumpingDistribution",

@@ -37,6 +37,17 @@ from bfc import keys
 from bfc.transforms._base import BatchedTransform, check, reset_mask
 
 OBSERVATIONS = ("heading", "odometry")
+# The observation's scales, clip and integral constants: a policy's own (PolicySpec stores them in
+# its file, the exports read them from there); these are what a new policy gets.
+OBSERVATION_SCALES = {
+    "position_clip": 3.0,  # m: the goal-relative position's clip
+    "velocity_scale": 0.5,
+    "angular_velocity_scale": 0.1,
+    "acceleration_scale": 0.05,
+    "integral_radius": 0.3,  # m: integrate within this of the goal
+    "integral_limit": 0.5,  # m s: the integral's clip
+    "integral_scale": 4.0,
+}
 
 
 def observation_size(
@@ -71,17 +82,17 @@ class PolicyObservation(BatchedTransform):
         self,
         num_envs: int,
         hover_speed: float,
-        position_clip: float = 3.0,
-        velocity_scale: float = 0.5,
-        angular_velocity_scale: float = 0.1,
+        position_clip: float = OBSERVATION_SCALES["position_clip"],
+        velocity_scale: float = OBSERVATION_SCALES["velocity_scale"],
+        angular_velocity_scale: float = OBSERVATION_SCALES["angular_velocity_scale"],
         include_acceleration: bool = False,
-        acceleration_scale: float = 0.05,
+        acceleration_scale: float = OBSERVATION_SCALES["acceleration_scale"],
         command_to_action=None,
         position_integral: bool = False,
         dt: float = 0.01,
-        integral_radius: float = 0.3,
-        integral_limit: float = 0.5,
-        integral_scale: float = 4.0,
+        integral_radius: float = OBSERVATION_SCALES["integral_radius"],
+        integral_limit: float = OBSERVATION_SCALES["integral_limit"],
+        integral_scale: float = OBSERVATION_SCALES["integral_scale"],
         kind: str = "heading",
         command_history: int = 0,
     ):

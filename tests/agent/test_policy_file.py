@@ -82,3 +82,29 @@ def test_bad_spec_values_name_the_key():
         PolicySpec(hidden=())
     with pytest.raises(ValueError, match="airframe.body_mass must be > 0"):
         PolicySpec(airframe={"body_mass": 0.0})
+
+
+def test_a_policy_file_carries_its_observation_constants_and_older_files_keep_theirs(tmp_path, monkeypatch):
+    """The scales, clip and integral constants are the policy's: stored in its file, read by the
+    maps and the exports from there (their parity on such a policy: tests/test_export*.py); a file
+    written before they were stored keeps the values it was trained with, whatever the defaults."""
+    from bfc.agent.policy_file import LEGACY_OBSERVATION_SCALES
+    from bfc.export import export_c
+    from bfc.transforms import OBSERVATION_SCALES
+    from tests.export_helpers import PRETRAINED, SCALED, tiny_policy
+
+    path = tiny_policy(tmp_path / "scaled.pt", scales=SCALED)
+    assert torch.load(path, weights_only=True)["spec"]["observation_scales"] == SCALED
+    spec = read_policy(path).spec
+    observation = spec.make_observation_map(1)
+    assert spec.observation_scales == SCALED and {k: getattr(observation, k) for k in SCALED} == SCALED
+    header = export_c(path, tmp_path / "policy.h").read_text()
+    assert "#define BFC_POLICY_POSITION_CLIP 0.5f /* m */" in header
+    assert "#define BFC_POLICY_INTEGRAL_LIMIT 0.200000003f" in header  # float32's 0.2
+    assert "observation_scales" not in torch.load(PRETRAINED, weights_only=True)["spec"]  # written before
+    monkeypatch.setitem(OBSERVATION_SCALES, "position_clip", 9.0)  # a default changes ...
+    assert PolicySpec().observation_scales["position_clip"] == 9.0
+    assert read_policy(PRETRAINED).spec.observation_scales == LEGACY_OBSERVATION_SCALES  # ... old files do not
+    assert read_policy(V1).spec.observation_scales == LEGACY_OBSERVATION_SCALES
+    with pytest.raises(ValueError, match="observation_scales must be among position_clip"):
+        PolicySpec(observation_scales={"position_clipp": 1.0})
