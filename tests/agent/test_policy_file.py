@@ -91,7 +91,7 @@ def test_a_policy_file_carries_its_observation_constants_and_older_files_keep_th
     from bfc.agent.policy_file import LEGACY_OBSERVATION_SCALES
     from bfc.export import export_c
     from bfc.transforms import OBSERVATION_SCALES
-    from tests.export_helpers import PRETRAINED, SCALED, tiny_policy
+    from tests.export_helpers import SCALED, tiny_policy
 
     path = tiny_policy(tmp_path / "scaled.pt", scales=SCALED)
     assert torch.load(path, weights_only=True)["spec"]["observation_scales"] == SCALED
@@ -101,10 +101,12 @@ def test_a_policy_file_carries_its_observation_constants_and_older_files_keep_th
     header = export_c(path, tmp_path / "policy.h").read_text()
     assert "#define BFC_POLICY_POSITION_CLIP 0.5f /* m */" in header
     assert "#define BFC_POLICY_INTEGRAL_LIMIT 0.200000003f" in header  # float32's 0.2
-    assert "observation_scales" not in torch.load(PRETRAINED, weights_only=True)["spec"]  # written before
+    older = torch.load(path, weights_only=True)  # as a v2 file written before the constants were stored
+    del older["spec"]["observation_scales"]
+    torch.save(older, tmp_path / "older.pt")
     monkeypatch.setitem(OBSERVATION_SCALES, "position_clip", 9.0)  # a default changes ...
     assert PolicySpec().observation_scales["position_clip"] == 9.0
-    assert read_policy(PRETRAINED).spec.observation_scales == LEGACY_OBSERVATION_SCALES  # ... old files do not
+    assert read_policy(tmp_path / "older.pt").spec.observation_scales == LEGACY_OBSERVATION_SCALES  # ... old files do not
     assert read_policy(V1).spec.observation_scales == LEGACY_OBSERVATION_SCALES
     with pytest.raises(ValueError, match="observation_scales must be among position_clip"):
         PolicySpec(observation_scales={"position_clipp": 1.0})
