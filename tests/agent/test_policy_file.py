@@ -106,7 +106,7 @@ def test_a_policy_file_carries_its_observation_constants_and_older_files_keep_th
     torch.save(older, tmp_path / "older.pt")
     monkeypatch.setitem(OBSERVATION_SCALES, "position_clip", 9.0)  # a default changes ...
     assert PolicySpec().observation_scales["position_clip"] == 9.0
-    assert read_policy(tmp_path / "older.pt").spec.observation_scales == LEGACY_OBSERVATION_SCALES  # ... old files do not
+    assert read_policy(tmp_path / "older.pt").spec.observation_scales == LEGACY_OBSERVATION_SCALES  # ... not theirs
     assert read_policy(V1).spec.observation_scales == LEGACY_OBSERVATION_SCALES
     with pytest.raises(ValueError, match="observation_scales must be among position_clip"):
         PolicySpec(observation_scales={"position_clipp": 1.0})
