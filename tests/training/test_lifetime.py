@@ -5,6 +5,7 @@ them leaves a shared-memory segment or a multiprocessing socket behind. Real `tr
 processes, real signals."""
 
 import os
+import resource
 import signal
 import subprocess
 import sys
@@ -44,9 +45,18 @@ def wait_for(predicate, seconds: float, what: str):
     pytest.fail(f"{what} did not happen within {seconds} s")
 
 
+def no_core_files() -> None:
+    resource.setrlimit(resource.RLIMIT_CORE, (0, 0))  # a worker the test crashes writes no core file
+
+
 def start(args: list[str]) -> subprocess.Popen:
     return subprocess.Popen(
-        [sys.executable, "train.py", *args], cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True
+        [sys.executable, "train.py", *args],
+        cwd=ROOT,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+        text=True,
+        preexec_fn=no_core_files,
     )
 
 
@@ -234,3 +244,15 @@ def test_stopping_evaluate_leaves_no_process_and_no_shared_memory(tmp_path, sim,
         assert err.strip().splitlines()[-1].startswith("interrupted:")
     wait_for(lambda: not any(alive(p) for p in spawned), 10, "the exit of what evaluate.py started")
     assert leftovers() <= before
+
+
+def test_a_worker_that_crashes_is_named_with_its_signal(tmp_path):
+    """A segfault in MuJoCo's C code reads as SIGSEGV: the one line names it."""
+    process = start([f"hydra.run.dir={tmp_path}", *ASYNC])
+    worker = worker_of(process)
+    wait_for(lambda: list(tmp_path.glob("tb/events*")), 120, "training")
+    os.kill(worker, signal.SIGSEGV)
+    _, err = process.communicate(timeout=60)
+    lines = [line for line in err.strip().splitlines() if "[INFO]" not in line]
+    assert process.returncode == lifetime.FAILED and len(lines) == 1, err[-3000:]
+    assert f"error: collector worker 0 (pid {worker}) died: killed by SIGSEGV; " in lines[0]
