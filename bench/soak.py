@@ -114,7 +114,7 @@ def main() -> int:
         }
         print(
             f"{name}: RSS {first['rss_mib']:.0f} MiB at minute {first['minute']:.1f}, peak {peak:.0f}, "
-            f"last {last['rss_mib']:.0f} (+{last['rss_mib'] - first['rss_mib']:.1f} MiB); "
+            f"last {last['rss_mib']:.0f} ({last['rss_mib'] - first['rss_mib']:+.1f} MiB); "
             f"fds {min(r['fds'] for r in warm)}-{max(r['fds'] for r in warm)}"
         )
     result = {
