@@ -34,9 +34,9 @@ class WorkerDied(RuntimeError):
 class Preempted(Exception):
     """SIGTERM reached a training run, which wrote a checkpoint at `frames` and stopped."""
 
-    def __init__(self, run_dir, frames: int):
+    def __init__(self, frames: int):
         super().__init__(f"preempted (SIGTERM) at {frames} frames")
-        self.run_dir, self.frames = run_dir, int(frames)
+        self.frames = int(frames)
 
 
 def death_cause(exitcode: int | None) -> str:

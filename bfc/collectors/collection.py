@@ -284,32 +284,23 @@ class _Worker:
 
 
 def _dumps(message) -> bytes:
-    return pickle.dumps(_to_numpy(message), protocol=pickle.HIGHEST_PROTOCOL)
+    """Tensors as numpy arrays (their exact bytes), so plain pickle copies them: torch's own
+    reduction would share each through a new shared-memory segment and a passed descriptor."""
+    return pickle.dumps(_tree(message, torch.Tensor, lambda t: _Array(t.detach().numpy())), pickle.HIGHEST_PROTOCOL)
 
 
 def _loads(data: bytes):
-    return _to_torch(pickle.loads(data))
+    return _tree(pickle.loads(data), _Array, lambda a: torch.from_numpy(a.array))
 
 
-def _to_numpy(x):
-    """Tensors as numpy arrays (their exact bytes), so plain pickle copies them: torch's own
-    reduction would share each through a new shared-memory segment and a passed descriptor."""
-    if isinstance(x, torch.Tensor):
-        return _Array(x.detach().numpy())
+def _tree(x, kind, leaf):
+    """`x` (dicts, lists and tuples of anything) with every `kind` in it replaced by `leaf(it)`."""
+    if isinstance(x, kind):
+        return leaf(x)
     if isinstance(x, dict):
-        return {k: _to_numpy(v) for k, v in x.items()}
+        return {k: _tree(v, kind, leaf) for k, v in x.items()}
     if isinstance(x, (list, tuple)):
-        return type(x)(_to_numpy(v) for v in x)
-    return x
-
-
-def _to_torch(x):
-    if isinstance(x, _Array):
-        return torch.from_numpy(x.array)
-    if isinstance(x, dict):
-        return {k: _to_torch(v) for k, v in x.items()}
-    if isinstance(x, (list, tuple)):
-        return type(x)(_to_torch(v) for v in x)
+        return type(x)(_tree(v, kind, leaf) for v in x)
     return x
 
 

@@ -321,7 +321,7 @@ class Runner:
             if preempted:
                 if progress is not None:
                     progress.close()
-                raise Preempted(run_dir, self.frames)
+                raise Preempted(self.frames)
             torch.set_num_threads(1)  # collection: MuJoCo's threads get the cores
             t_batch = time.perf_counter()
             if ending:
