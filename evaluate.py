@@ -15,6 +15,7 @@ ground and model mismatch and wind, bfc.evaluation.suites) with robust.png and r
 Every key is honoured or rejected in each mode; bad input ends with a one-line `error: ...` and exit status 2.
 """
 
+import dataclasses
 import json
 import sys
 import time
@@ -47,6 +48,23 @@ SIM_NOTES = {
 
 def _changed(cfg, key: str) -> bool:
     return OmegaConf.select(cfg, key) != OmegaConf.select(DEFAULTS, key)
+
+
+def nominal_airframe(cfg):
+    """The airframe of the flights: the policy's own, else `airframe=` (the Hummingbird by default)."""
+    from bfc.config import airframe_params
+    from bfc.envs import AirframeParams
+
+    if cfg.policy is not None:
+        from bfc.evaluation.flying import airframe_of
+
+        own = airframe_of(cfg.policy)
+        if cfg.airframe is not None and airframe_params(cfg.airframe).name != own.name:
+            raise ValueError(
+                f"{cfg.policy} flies the airframe it was trained on ({own.name}); airframe= is for controller= alone"
+            )
+        return own
+    return airframe_params(cfg.airframe) if cfg.airframe is not None else AirframeParams()
 
 
 def check(cfg) -> None:
@@ -167,11 +185,14 @@ def main(cfg) -> None:
         controller = cfg.controller or cfg.policy
         e = cfg.eval
         starts = protocol_starts(e.num_starts, e.seed)
+        nominal = nominal_airframe(cfg)
         t0 = time.perf_counter()
         if cfg.sim == "rotorpy":
             from bfc.evaluation.rotorpy_sim import fly_rotorpy
 
-            flights = fly_rotorpy(controller, starts, tuple(cfg.goal), e.seconds, airframe=cfg.rotorpy_airframe)
+            flights = fly_rotorpy(
+                controller, starts, tuple(cfg.goal), e.seconds, airframe=cfg.rotorpy_airframe, nominal=nominal
+            )
         else:
             flights = fly(
                 controller,
@@ -180,12 +201,14 @@ def main(cfg) -> None:
                 seconds=e.seconds,
                 noise=OmegaConf.to_container(cfg.noise),
                 seed=e.seed,
+                nominal=dataclasses.asdict(nominal),
             )
         wall = time.perf_counter() - t0
     except (ValueError, FileNotFoundError) as err:
         fail(err)
     results = {
         "controller": str(controller),
+        "airframe": nominal.name,
         "sim": cfg.sim if cfg.sim == "mujoco" else f"rotorpy ({cfg.rotorpy_airframe} airframe)",
         "noise": OmegaConf.to_container(cfg.noise),
         "protocol": OmegaConf.to_container(cfg.eval),
@@ -219,16 +242,18 @@ def run_suite(cfg, out: Path) -> None:
     print(f"report written to {path} in {time.perf_counter() - t0:.0f} s")
 
 
-def robust_keeper(kept: dict, label: str, count: int, pick: str, threshold: float, num_starts: int, seed: int):
+def robust_keeper(
+    kept: dict, label: str, count: int, pick: str, threshold: float, num_starts: int, seed: int, airframe=None
+):
     """An `on_flights` for `robust_results`: keeps, in kept[row], the clips of `label`'s chosen starts
     of each row (the other controllers' flights are not filmed)."""
-    from bfc.evaluation.suites import START_SETS, condition
+    from bfc.evaluation.suites import condition
     from bfc.evaluation.video import clips_from_flights, pick_starts
 
     def keep(name: str, flown: str, flights) -> None:
         if flown != label:
             return
-        starts = START_SETS[condition(name).starts](num_starts, seed)
+        starts = condition(name).starts_for(num_starts, seed, airframe)
         kept[name] = clips_from_flights(flights, starts, pick_starts(starts, count, pick), threshold, label=name)
 
     return keep
@@ -249,23 +274,27 @@ def run_robust(cfg, out: Path) -> None:
     label = cfg.controller or "bfc"
     controllers = {label: controller, **{b: b for b in cfg.baselines if b != label}}
     e = cfg.eval
+    nominal = nominal_airframe(cfg)
     t0 = time.perf_counter()
     kept, keep = {}, None
     if cfg.video:  # the chosen starts of each row, flown by the policy (or controller) under test
-        keep = robust_keeper(kept, label, cfg.video_starts, cfg.video_pick, e.threshold, e.num_starts, e.seed)
+        keep = robust_keeper(kept, label, cfg.video_starts, cfg.video_pick, e.threshold, e.num_starts, e.seed, nominal)
     if cfg.sim == "rotorpy":
         from bfc.evaluation.rotorpy_sim import robust_results_rotorpy
 
-        results = robust_results_rotorpy(controllers, None, e.num_starts, e.seed, e, cfg.rotorpy_airframe)
+        results = robust_results_rotorpy(controllers, None, e.num_starts, e.seed, e, cfg.rotorpy_airframe, nominal)
     else:
         names = list(SUITES[suite])
-        results = robust_results(controllers, names, num_starts=e.num_starts, seed=e.seed, protocol=e, on_flights=keep)
+        results = robust_results(
+            controllers, names, num_starts=e.num_starts, seed=e.seed, protocol=e, on_flights=keep, airframe=nominal
+        )
     (out / f"{suite}.json").write_text(json.dumps(results, indent=1))
     robust_figure(results, out / f"{suite}.png")
     lines = [
         f"# {TITLES[suite]}",
         "",
-        f"Controller: `{controller}`. Simulator: {SIM_NOTES[cfg.sim].format(airframe=cfg.rotorpy_airframe)}. "
+        f"Controller: `{controller}`. Airframe: {nominal.name}. "
+        f"Simulator: {SIM_NOTES[cfg.sim].format(airframe=cfg.rotorpy_airframe)}. "
         f"Command: `python evaluate.py {' '.join(sys.argv[1:])}`. "
         f"{e.num_starts} starts per suite (seed {e.seed}), {e.seconds:g} s, success = within {e.threshold:g} m on "
         f"every axis for {e.hold_seconds:g} s; hover error = median over the successful flights of the mean "

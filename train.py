@@ -106,8 +106,7 @@ def main(cfg) -> float:
 
 
 if __name__ == "__main__":
-    precheck("config")
-    sys.argv[1:] = with_launcher_defaults(sys.argv[1:])
+    sys.argv[1:] = with_launcher_defaults(precheck("config"))
     lifetime.mark_sweep_process()
     try:
         main()

@@ -105,23 +105,31 @@ def check_plugins(overrides: list[str]) -> None:
             ) from None
 
 
-def precheck(config_name: str, argv: list[str] | None = None) -> None:
+def precheck(config_name: str, argv: list[str] | None = None) -> list[str]:
     """Check the command line's overrides against the schema and conf/ before Hydra composes
     (bfc.config.check_overrides), and the launcher or sweeper they name (check_plugins): a key
     that names nothing, a moved key, an unknown group option, bad override syntax, a missing
     extra or a Ray cluster that does not answer ends here with one line, before any job of a
-    sweep starts."""
+    sweep starts. Returns the arguments Hydra is to run: `env.airframe=<name or file>` expanded
+    (bfc.config.expand_airframe)."""
     import warnings
 
-    from bfc.config import check_overrides
+    from bfc.config import check_overrides, expand_airframe
 
     # conf/hydra/launcher/ray.yaml replaces the Ray plugin's defaults, which Hydra warns of
     warnings.filterwarnings("ignore", message=r"\s*'hydra/launcher/ray' is validated against ConfigStore schema")
-    overrides, ours = overrides_of(sys.argv[1:] if argv is None else argv)
+    argv = sys.argv[1:] if argv is None else list(argv)
+    overrides, ours = overrides_of(argv)
     if not ours:
-        return
+        return argv
     try:
+        if config_name == "config":
+            expanded = expand_airframe(overrides)
+            if expanded != overrides:
+                flags = [a for a in argv if a not in overrides]
+                argv, overrides = [*flags, *expanded], expanded
         check_overrides(overrides, config_name)
         check_plugins(overrides)
     except ValueError as err:
         fail(err)
+    return argv

@@ -358,6 +358,9 @@ class EvaluateConfig:
 
     policy: str | None = None  # path to a policy.pt
     controller: str | None = None  # a classical controller name (bfc.evaluation.CONTROLLERS)
+    # what a controller (and the baselines) fly: a built-in (conf/env/airframe/) or an airframe file; null:
+    # the policy's own airframe (a policy flies only the one it was trained on), else the Hummingbird
+    airframe: str | None = None
     # paper: protocol, accuracy, noise, waypoints, baselines (report.md); robust: robust.md;
     # hardware: hardware.md (latency, estimator noise and gyro bias, a throw)
     suite: str | None = None
@@ -368,7 +371,7 @@ class EvaluateConfig:
     eval: TestProtocolConfig = field(default_factory=TestProtocolConfig)
     noise: NoiseConfig = field(default_factory=NoiseConfig)  # single evaluation: seen by the controller only
     sim: str = "mujoco"  # the simulator flown: mujoco (bfc's env) | rotorpy (docs/evaluation.md)
-    rotorpy_airframe: str = "bfc"  # sim=rotorpy: bfc's "+" airframe | rotorpy (its X Hummingbird)
+    rotorpy_airframe: str = "bfc"  # sim=rotorpy: the policy's bfc airframe | rotorpy (RotorPy's own of it)
     # Videos rendered by MuJoCo (bfc.evaluation.video; docs/evaluation.md, "Videos"): video.mp4 and
     # video.gif beside results.json (suite=robust: video_<row>.mp4/.gif per row)
     video: bool = False
@@ -418,6 +421,8 @@ def compose(overrides=(), config_name: str = "config") -> DictConfig:
 
     if config_name not in SCHEMAS:
         raise ValueError(f"config_name must be one of {sorted(SCHEMAS)}, got {config_name!r}")
+    if config_name == "config":
+        overrides = expand_airframe(overrides)
     try:
         with initialize_config_dir(config_dir=str(CONF_DIR), version_base="1.3"):
             cfg = hydra_compose(config_name=config_name, overrides=list(overrides))
@@ -467,8 +472,122 @@ def _unknown_message(key: str, where: str, allowed, config_name: str) -> str:
 
 
 def config_groups() -> dict[str, list[str]]:
-    """{group: [option, ...]} of the repository's Hydra config groups (conf/<group>/<option>.yaml)."""
-    return {d.name: sorted(f.stem for f in d.glob("*.yaml")) for d in sorted(CONF_DIR.iterdir()) if d.is_dir()}
+    """{group: [option, ...]} of the repository's Hydra config groups (conf/<group>/<option>.yaml,
+    nested ones as env/airframe)."""
+    dirs = sorted({f.parent for f in CONF_DIR.rglob("*.yaml")} - {CONF_DIR})
+    return {d.relative_to(CONF_DIR).as_posix(): sorted(f.stem for f in d.glob("*.yaml")) for d in dirs}
+
+
+WIND_LIMIT = 0.5  # the strongest training wind, as a share of the airframe's weight
+
+# A user's airframe file (`env.airframe=path/to/file.yaml`): these fields it must give, the others
+# take neutral values (no rotor or IMU masses, no rotor drag), never the Hummingbird's.
+AIRFRAME_FILE_REQUIRED = (
+    "body_mass",
+    "inertia",
+    "layout",
+    "arm_length",
+    "motor_constant",
+    "moment_constant",
+    "max_rotor_speed",
+    "time_constant_up",
+    "time_constant_down",
+    "hull_half_size",
+)
+AIRFRAME_FILE_DEFAULTS = {
+    "rotor_mass": 0.0,
+    "imu_mass": 0.0,
+    "rotor_height": 0.0,
+    "rotor_drag_coefficient": 0.0,
+    "rolling_moment_coefficient": 0.0,
+}
+
+
+AIRFRAME_GROUP = "env/airframe"  # the config group of the built-in airframes (conf/env/airframe/)
+
+
+def builtin_airframes() -> list[str]:
+    """The built-in airframes: conf/env/airframe/<name>.yaml."""
+    return sorted(f.stem for f in (CONF_DIR / AIRFRAME_GROUP).glob("*.yaml"))
+
+
+def airframe_params(name: str) -> AirframeParams:
+    """A built-in airframe by name, or a user's airframe file by path, as AirframeParams."""
+    if name in builtin_airframes():
+        node = OmegaConf.to_container(OmegaConf.load(CONF_DIR / AIRFRAME_GROUP / f"{name}.yaml"))
+        return AirframeParams(**(node or {}).get("env", {}).get("airframe", {}))
+    return AirframeParams(**load_airframe_file(name))
+
+
+def load_airframe_file(path) -> dict:
+    """Every AirframeParams field of a user's airframe file (YAML, the fields at its top level),
+    checked: a missing, unknown or bad field is one ValueError line naming it and the file."""
+    from omegaconf.errors import OmegaConfBaseException
+
+    path = Path(path)
+    if not path.is_file():
+        raise ValueError(
+            f"env.airframe={path}: no such file; a built-in ({', '.join(builtin_airframes())}) or a YAML file of "
+            "airframe fields (docs/airframes.md)"
+        )
+    try:
+        node = OmegaConf.load(path)
+    except (OmegaConfBaseException, OSError, ValueError) as err:
+        raise ValueError(f"{path}: not a YAML file of airframe fields ({str(err).splitlines()[0]})") from None
+    given = OmegaConf.to_container(node) if OmegaConf.is_dict(node) else None
+    if not isinstance(given, dict):
+        raise ValueError(f"{path}: must hold airframe fields (body_mass: 0.03, ...), got {type(given).__name__}")
+    known = _schema_keys(AirframeParams())
+    unknown = [k for k in given if k not in known]
+    if unknown:
+        raise ValueError(f"{path}: unknown airframe field {unknown[0]!r}; fields: {', '.join(known)}")
+    missing = [k for k in AIRFRAME_FILE_REQUIRED if k not in given]
+    if missing:
+        raise ValueError(f"{path}: missing airframe field(s) {', '.join(missing)} (docs/airframes.md lists each)")
+    out = {"name": path.stem, **AIRFRAME_FILE_DEFAULTS, **given}
+    try:
+        out = dataclasses.asdict(AirframeParams(**out))
+    except ValueError as err:
+        raise ValueError(f"{path}: {err}") from None
+    return {k: (list(v) if isinstance(v, tuple) else v) for k, v in out.items()}
+
+
+def _override_value(v) -> str:
+    if isinstance(v, (list, tuple)):
+        return "[" + ",".join(_override_value(x) for x in v) + "]"
+    return f"'{v}'" if isinstance(v, str) else repr(v)
+
+
+def expand_airframe(overrides) -> list[str]:
+    """`env.airframe=<built-in>` is the config group `env/airframe=<built-in>` (a sweep too:
+    `env.airframe=hummingbird,crazyflie`); `env.airframe=<file.yaml>` sets every field from the
+    file, before the command line's own `env.airframe.*` (which still override one value).
+    Anything else passes unchanged."""
+    out, files = [], []
+    for o in overrides:
+        key, sep, value = o.partition("=")
+        if not sep or key.lstrip("+~") != "env.airframe":
+            out.append(o)
+            continue
+        options = value.split(",")
+        if all(v in builtin_airframes() for v in options):
+            out.append(f"{AIRFRAME_GROUP}={value}")
+        elif len(options) == 1 and value.endswith((".yaml", ".yml")):
+            files.append(value)
+        else:
+            bad = next(v for v in options if v not in builtin_airframes())
+            raise ValueError(
+                f"env.airframe={bad} is not an airframe: a built-in ({', '.join(builtin_airframes())}) or a path to a "
+                "YAML file (one per run, not in a sweep), e.g. env.airframe=my_drone.yaml"
+            )
+    if len(files) > 1:
+        raise ValueError(f"env.airframe is given twice ({', '.join(files)}): one airframe per run")
+    if files:
+        if any(o.partition("=")[0] == AIRFRAME_GROUP for o in out):
+            raise ValueError(f"env.airframe=<file> and {AIRFRAME_GROUP}=<built-in> both name the airframe: keep one")
+        fields = load_airframe_file(files[0])
+        out = [f"env.airframe.{k}={_override_value(v)}" for k, v in fields.items()] + out
+    return out
 
 
 def check_overrides(overrides, config_name: str = "config") -> None:
@@ -609,6 +728,17 @@ def jd_decay_frames(cfg) -> int:
 def validate(cfg) -> None:
     """Training-level checks; env and transform values are checked by their constructors."""
     check_keys(cfg)
+    airframe = AirframeParams(
+        **OmegaConf.to_container(cfg.env.airframe)
+    )  # a bad value: one line, before anything starts
+    wind = cfg.env.randomize.external_force
+    check(
+        wind <= WIND_LIMIT * airframe.weight,
+        "env.randomize.external_force",
+        f"at most {WIND_LIMIT:.0%} of the airframe's weight ({airframe.weight:.3g} N; the built-ins train with 14%: "
+        f"{0.14 * airframe.weight:.2g} N)",
+        wind,
+    )
     check(cfg.sweep_objective in OBJECTIVES, "sweep_objective", ", ".join(OBJECTIVES), cfg.sweep_objective)
     c = cfg.collector
     num_envs = cfg.env.num_envs

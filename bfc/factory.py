@@ -175,6 +175,7 @@ def make_flight_env(
     physics_dt: float = REFERENCE_PHYSICS_DT,
     seconds: float = 11.0,
     airframe: dict | None = None,
+    nominal: dict | None = None,
     noise=None,
     num_threads: int | None = None,
     seed: int | None = None,
@@ -189,7 +190,9 @@ def make_flight_env(
     and nominal airframe it flies (a policy file is always flown as it was trained); None: no
     policy maps, at `control_hz` (controllers read `"odometry"` and command rad/s).
     airframe: AirframeParams fields of the flown body that differ from the nominal one (model
-    mismatch); noise: a `noise` config section, corrupting only what the controller sees;
+    mismatch); nominal: the nominal airframe's fields for a flight without a policy (the
+    Hummingbird when None; a policy flies its own); noise: a `noise` config section, corrupting
+    only what the controller sees;
     observation_delay / action_delay: seconds of latency (bfc.transforms.latency), in whole control
     steps (rounded down); start_motors: "rest" or "hover" at release.
     """
@@ -197,7 +200,7 @@ def make_flight_env(
         raise ValueError(f"this policy was trained at {policy.control_hz:g} Hz and is flown at that rate only")
     rate = policy.control_hz if policy is not None else control_hz
     check(rate is not None, "control_hz", "given for a flight without a policy", rate)
-    nominal = policy.airframe if policy is not None else {}
+    nominal = policy.airframe if policy is not None else dict(nominal or {})
     base = QuadrotorEnv(
         int(num_envs),
         control_hz=float(rate),

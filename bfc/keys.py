@@ -3,7 +3,7 @@
 Keys are the contract between the packages: name them once, import them everywhere.
 """
 
-ACTION = "action"  # (N, 4) motor speed commands, rad/s, motor order of bfc.envs.params.ROTOR_DIRECTIONS
+ACTION = "action"  # (N, 4) motor speed commands, rad/s, motor order of AirframeParams.motor_order()
 ODOMETRY = "odometry"  # (N, 18) what the sensors report (noise transforms act here)
 GOAL = "goal"  # (N, 3) desired position, world frame
 STATE = "state"  # ground truth sub-tensordict, never touched by noise

@@ -209,21 +209,20 @@ def generate_c(spec: PolicySpec, net, source: str = "policy.pt", name: str = "po
     history_decl_out = f", float history_out[{K}][4]" if K else ""
 
     odometry_note = "" if obs.kind == "odometry" or spec.include_acceleration else " (6:9 and 15:18 unused here)"
+    order = spec.nominal_airframe.motor_order()
     if integral:
         integral_lines = [
             " *   integral_in[3] the position-error integral (m s, world frame): the integral_out of the",
             " *                  previous step, zeros after a reset (NULL reads as zeros)",
             " * Outputs:",
-            f" *   motor_speeds_out[4]  rad/s in [0, {P}_MAX_ROTOR_SPEED]; motor order 0 front (+x) CW,",
-            " *                  1 left (+y) CCW, 2 back (-x) CW, 3 right (-y) CCW",
+            f" *   motor_speeds_out[4]  rad/s in [0, {P}_MAX_ROTOR_SPEED]; motor order {order}",
             " *   integral_out[3]  the integral after this step, to pass back next time (NULL: not written)",
         ]
     else:
         integral_lines = [
             " *   integral_in[3] unused: this policy has no position-error integral (pass NULL)",
             " * Outputs:",
-            f" *   motor_speeds_out[4]  rad/s in [0, {P}_MAX_ROTOR_SPEED]; motor order 0 front (+x) CW,",
-            " *                  1 left (+y) CCW, 2 back (-x) CW, 3 right (-y) CCW",
+            f" *   motor_speeds_out[4]  rad/s in [0, {P}_MAX_ROTOR_SPEED]; motor order {order}",
             " *   integral_out[3]  not written (pass NULL)",
         ]
     parts = [f"{obs.kind} observation, {obs.size} numbers"]

@@ -28,7 +28,9 @@ runs in training and evaluation. Needs the `onnx` extra: pip install -e ".[onnx]
 
 from __future__ import annotations
 
+import dataclasses
 import io
+import json
 import warnings
 from pathlib import Path
 
@@ -52,7 +54,6 @@ ODOMETRY_LAYOUT = (
     "9:12 roll, pitch, yaw (rad, ZYX), 12:15 angular velocity (rad/s, body), "
     "15:18 angular acceleration (rad/s^2, body)"
 )
-MOTOR_ORDER = "0 front (+x) CW, 1 left (+y) CCW, 2 back (-x) CW, 3 right (-y) CCW"
 _INSTALL_HINT = 'ONNX export needs the onnx extra: pip install -e ".[onnx]"'
 
 
@@ -182,7 +183,8 @@ def export_onnx(policy_path, onnx_path, opset: int | None = None) -> Path:
         "command_history": str(spec.command_history),
         "observation": spec.observation,
         "odometry_layout": ODOMETRY_LAYOUT,
-        "motor_order": MOTOR_ORDER,
+        "motor_order": airframe.motor_order(),
+        "airframe": json.dumps(dataclasses.asdict(airframe)),
         "source": Path(policy_path).name,
     }
     for key, value in metadata.items():
@@ -208,6 +210,7 @@ def _parse_metadata(meta: dict, onnx_path) -> dict:
     out["include_acceleration"] = meta.get("include_acceleration") == "true"
     out["position_integral"] = meta.get("position_integral") == "true"
     out["command_history"] = int(meta.get("command_history", "0"))
+    out["airframe"] = json.loads(meta["airframe"]) if "airframe" in meta else {}  # older exports: the Hummingbird
     return out
 
 

@@ -93,7 +93,7 @@ class PolicySpec:
     def from_config(cls, cfg) -> PolicySpec:
         """The spec a training config trains (`model.*`, `env.control_hz`, `env.airframe`)."""
         m, e = cfg.model, cfg.env
-        airframe = {k: (list(v) if not isinstance(v, (int, float)) else v) for k, v in dict(e.airframe).items()}
+        airframe = {k: (v if isinstance(v, (int, float, str)) else list(v)) for k, v in dict(e.airframe).items()}
         return cls(
             observation=m.observation,
             include_acceleration=m.include_acceleration,

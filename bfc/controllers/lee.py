@@ -45,16 +45,27 @@ def _vee(m: torch.Tensor) -> torch.Tensor:
     return torch.stack((m[:, 2, 1], m[:, 0, 2], m[:, 1, 0]), -1)
 
 
+# The airframe LeeGains are given for (RotorS's Hummingbird): another airframe gets them scaled
+_REFERENCE = AirframeParams()
+
+
 class LeeController(Controller):
+    """Lee's controller for `airframe`. Its gains (LeeGains) are the Hummingbird's; on another
+    airframe the position, velocity and integral gains scale with the mass and the attitude and
+    rate gains with the inertia (per axis), so that the closed loop asks the same accelerations of
+    every airframe per unit of error (RotorS's own normalisation; 1 on the Hummingbird)."""
+
     def __init__(self, airframe: AirframeParams, dt: float, gains: LeeGains | None = None):
         super().__init__(airframe, dt)
         self.gains = gains or LeeGains()
         f64 = torch.float64
-        self.kp = torch.tensor(self.gains.position, dtype=f64)
-        self.kv = torch.tensor(self.gains.velocity, dtype=f64)
-        self.kr = torch.tensor(self.gains.attitude, dtype=f64)
-        self.kw = torch.tensor(self.gains.angular_rate, dtype=f64)
-        self.ki = torch.tensor(self.gains.integral, dtype=f64)
+        mass = airframe.total_mass / _REFERENCE.total_mass
+        inertia = self.inertia / torch.tensor(_REFERENCE.rigid_inertia, dtype=f64)
+        self.kp = torch.tensor(self.gains.position, dtype=f64) * mass
+        self.kv = torch.tensor(self.gains.velocity, dtype=f64) * mass
+        self.kr = torch.tensor(self.gains.attitude, dtype=f64) * inertia
+        self.kw = torch.tensor(self.gains.angular_rate, dtype=f64) * inertia
+        self.ki = torch.tensor(self.gains.integral, dtype=f64) * mass
         self._integral = None
 
     def reset(self) -> None:

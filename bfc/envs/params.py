@@ -1,6 +1,7 @@
-"""AscTec Hummingbird parameters as in RotorS (rotors_description/urdf/hummingbird.xacro).
+"""The airframe (by default the AscTec Hummingbird of RotorS, rotors_description/urdf/hummingbird.xacro)
+and the task's parameters.
 
-One dataclass, so a config can override any of them (`env.airframe.*`); the per-episode
+One dataclass per concern, so a config can override any value (`env.airframe.*`); the per-episode
 randomisation of some of them is `RandomizeParams`. The task's parameters (reward, termination,
 starts, randomisation) are here too: plain dataclasses that check their values, so a config is
 checked without importing torch or MuJoCo (a bad value on the command line fails at once).
@@ -16,13 +17,33 @@ from bfc.checks import check as _check
 GOAL = (0.0, 0.0, 1.5)  # m: the paper's hover goal, every flight's and training's default
 
 
+# Rotor layouts: the unit direction of each rotor from the centre, in bfc's motor order (counter-
+# clockwise seen from above). "+": 0 front (+x), 1 left (+y), 2 back, 3 right. "x": the "+" turned
+# 45 deg: 0 front-left, 1 back-left, 2 back-right, 3 front-right.
+_D = math.sqrt(0.5)
+LAYOUTS = {
+    "+": ((1.0, 0.0), (0.0, 1.0), (-1.0, 0.0), (0.0, -1.0)),
+    "x": ((_D, _D), (-_D, _D), (-_D, -_D), (_D, -_D)),
+}
+_PLACES = {
+    "+": ("front (+x)", "left (+y)", "back (-x)", "right (-y)"),
+    "x": ("front-left (+x +y)", "back-left (-x +y)", "back-right (-x -y)", "front-right (+x -y)"),
+}
+_TRIPLES = ("inertia", "hull_half_size")
+
+
 @dataclass
 class AirframeParams:
+    """A quadrotor as data (the defaults: the AscTec Hummingbird of RotorS). The MuJoCo model,
+    the motor model, the policy's hover speed and thrust map, the classical controllers' mixer and
+    RotorPy's vehicle are all built from it; conf/env/airframe/ has the built-ins (docs/airframes.md)."""
+
+    name: str = "hummingbird"  # a label: a built-in's name (conf/env/airframe/), a user file's stem
     body_mass: float = 0.68  # kg, base link only
     rotor_mass: float = 0.009  # kg, each of 4
     imu_mass: float = 0.015  # kg
     inertia: tuple[float, float, float] = (0.007, 0.007, 0.012)  # base link, kg m^2
-    arm_length: float = 0.17  # m, "+" layout
+    arm_length: float = 0.17  # m, centre to each rotor's axis
     rotor_height: float = 0.01  # m above the body centre
     motor_constant: float = 8.54858e-06  # k_f: thrust F = k_f w^2 (N, w in rad/s)
     moment_constant: float = 0.016  # yaw moment M = 0.016 F, opposing the rotor's spin
@@ -32,30 +53,75 @@ class AirframeParams:
     rotor_drag_coefficient: float = 8.06428e-05  # drag = -|w| c v_perp (per rotor)
     rolling_moment_coefficient: float = 1e-06  # moment = -|w| c v_perp (per rotor)
     gravity: float = 9.81  # m/s^2
+    layout: str = "+"  # "+" (rotor 0 at the front) or "x" (rotor 0 front-left), LAYOUTS
+    # each rotor's spin in motor order: 1 clockwise seen from above (its reaction torque turns the
+    # body counter-clockwise, +z), -1 counter-clockwise
+    rotor_spins: tuple[float, float, float, float] = (1.0, -1.0, 1.0, -1.0)
+    min_rotor_speed: float = 0.0  # rad/s: the slowest a spinning motor turns (its ESC's idle)
+    # the collision box (m): half its length, width and height; its bottom rests on the floor
+    hull_half_size: tuple[float, float, float] = (0.2, 0.2, 0.04)
 
     def __post_init__(self) -> None:
+        _check(isinstance(self.name, str) and self.name != "", "env.airframe.name", "a non-empty string", self.name)
+        _check(self.layout in LAYOUTS, "env.airframe.layout", " or ".join(repr(k) for k in LAYOUTS), self.layout)
+        spins = tuple(self.rotor_spins) if isinstance(self.rotor_spins, (tuple, list)) else ()
+        _check(
+            len(spins) == 4 and all(v in (1, -1) for v in spins) and spins[0] == spins[2] == -spins[1] == -spins[3],
+            "env.airframe.rotor_spins",
+            "4 spins of +1 (clockwise) and -1, opposite rotors alike and neighbours opposed, e.g. [1, -1, 1, -1]",
+            self.rotor_spins,
+        )
+        self.rotor_spins = tuple(float(v) for v in spins)
         for f in fields(self):
+            if f.name in ("name", "layout", "rotor_spins"):
+                continue
             value = getattr(self, f.name)
             values = value if isinstance(value, (tuple, list)) else (value,)
-            if f.name == "inertia" and len(values) != 3:
-                raise ValueError(f"airframe.inertia must have 3 entries (Ixx, Iyy, Izz), got {value!r}")
+            if f.name in _TRIPLES:
+                _check(len(values) == 3, f"env.airframe.{f.name}", "3 numbers (x, y, z)", value)
             for v in values:
-                if not (isinstance(v, (int, float)) and math.isfinite(v) and v >= 0):
-                    raise ValueError(f"airframe.{f.name} must be finite and >= 0, got {value!r}")
+                ok = isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) and v >= 0
+                _check(ok, f"env.airframe.{f.name}", "finite and >= 0", value)
         positive = ("body_mass", "motor_constant", "max_rotor_speed", "time_constant_up", "time_constant_down")
         for name in positive:
-            if getattr(self, name) <= 0:
-                raise ValueError(f"airframe.{name} must be > 0, got {getattr(self, name)!r}")
+            _check(getattr(self, name) > 0, f"env.airframe.{name}", "> 0", getattr(self, name))
+        _check(min(self.hull_half_size) > 0, "env.airframe.hull_half_size", "3 sizes > 0", self.hull_half_size)
         self.inertia = tuple(float(v) for v in self.inertia)
+        ixx, iyy, izz = self.inertia
+        _check(
+            min(self.inertia) > 0 and ixx + iyy >= izz and iyy + izz >= ixx and izz + ixx >= iyy,
+            "env.airframe.inertia",
+            "a rigid body's (Ixx, Iyy, Izz) > 0, each at most the sum of the other two (a flat frame: Izz = Ixx + Iyy)",
+            list(self.inertia),
+        )
+        self.hull_half_size = tuple(float(v) for v in self.hull_half_size)
+        _check(
+            self.hover_speed < self.max_rotor_speed,
+            "env.airframe.max_rotor_speed",
+            f"above the hover speed {self.hover_speed:.1f} rad/s (four rotors at full speed must lift the airframe)",
+            self.max_rotor_speed,
+        )
+        _check(
+            self.min_rotor_speed < self.hover_speed,
+            "env.airframe.min_rotor_speed",
+            f"below the hover speed {self.hover_speed:.1f} rad/s",
+            self.min_rotor_speed,
+        )
 
     @property
     def total_mass(self) -> float:
         return self.body_mass + 4 * self.rotor_mass + self.imu_mass
 
     @property
+    def weight(self) -> float:
+        """N: what four rotors carry in a hover."""
+        return self.total_mass * self.gravity
+
+    @property
     def rigid_inertia(self) -> tuple[float, float, float]:
         """Inertia of the whole rigid body (kg m^2): the base link plus the rotors as point masses
-        at the arm tips (what MuJoCo integrates; controllers use it for J alpha)."""
+        at the arm tips (what MuJoCo integrates; controllers use it for J alpha). The same for both
+        layouts: four rotors at radius L add 2 m L^2 about x and y and 4 m L^2 about z."""
         arm = self.rotor_mass * self.arm_length**2
         ixx, iyy, izz = self.inertia
         return (ixx + 2 * arm, iyy + 2 * arm, izz + 4 * arm)
@@ -65,13 +131,28 @@ class AirframeParams:
         """Rotor speed (rad/s) at which four rotors carry the weight: sqrt(m g / (4 k_f))."""
         return math.sqrt(self.total_mass * self.gravity / (4 * self.motor_constant))
 
+    @property
+    def rotor_positions(self) -> tuple[tuple[float, float, float], ...]:
+        """Each rotor's (x, y, z) in the body frame (m), motor order."""
+        return tuple((dx * self.arm_length, dy * self.arm_length, self.rotor_height) for dx, dy in LAYOUTS[self.layout])
 
-# Rotor layout and motor order (the order of every motor-speed vector in bfc):
-# 0 front (+x) CW, 1 left (+y) CCW, 2 back (-x) CW, 3 right (-y) CCW.
-ROTOR_DIRECTIONS = ((1.0, 0.0), (0.0, 1.0), (-1.0, 0.0), (0.0, -1.0))
-# Reaction torque about +z per newton of thrust, in units of moment_constant: a CW rotor (seen
-# from above) pushes the body counter-clockwise (+z), a CCW rotor clockwise (-z).
-ROTOR_YAW_SIGNS = (1.0, -1.0, 1.0, -1.0)
+    @property
+    def ground_height(self) -> float:
+        """The centre's height when resting level on the floor (m): the hull's half height."""
+        return self.hull_half_size[2]
+
+    def motor_order(self) -> str:
+        """Where each motor of a motor-speed vector sits and how it spins, for docs and exports."""
+        spins = ("CW" if s > 0 else "CCW" for s in self.rotor_spins)
+        return ", ".join(f"{i} {place} {spin}" for i, (place, spin) in enumerate(zip(_PLACES[self.layout], spins)))
+
+    def torque_rows(self) -> tuple[tuple[float, float, float], ...]:
+        """Per rotor, the body torque (x, y, z) one newton of its thrust makes: r x F = (y, -x, 0)
+        and the reaction yaw moment spin * moment_constant."""
+        return tuple(
+            (y, -x, self.moment_constant * s)
+            for (x, y, _), s in zip(self.rotor_positions, self.rotor_spins, strict=True)
+        )
 
 
 REWARD_KINDS = ("bfc", "paper")

@@ -34,8 +34,6 @@ from bfc.checks import check as _check
 from bfc.envs.params import (  # the task's parameters live with the airframe's: no torch to check a config
     AIRFRAME_RANGES,
     GOAL,
-    ROTOR_DIRECTIONS,
-    ROTOR_YAW_SIGNS,
     AirframeParams,
     RandomizeParams,
     RewardParams,
@@ -47,8 +45,7 @@ from bfc.envs.rotations import euler_to_quat
 # Layout of MuJoCo's mjSTATE_FULLPHYSICS vector for this model: time, qpos (3 + 4), qvel (3 + 3).
 _POS, _QUAT, _LINVEL, _ANGVEL = slice(1, 4), slice(4, 8), slice(8, 11), slice(11, 14)
 REFERENCE_PHYSICS_DT = 0.002  # s: the simulator every evaluation flies (training may step coarser)
-HULL_HALF_SIZE = (0.2, 0.2, 0.04)  # collision box of the asset (m); its bottom is 0.04 m below the centre
-GROUND_HEIGHT = HULL_HALF_SIZE[2]  # centre height of a level drone resting on the floor
+BODY = "quadrotor"  # the asset's free body
 
 # Layout of the one float32 buffer (N, 30) a step writes (`QuadrotorEnv.advance`); every output
 # key is a view into it (`QuadrotorEnv.pack`).
@@ -84,20 +81,26 @@ def _as(cls, value):
 
 def build_model(airframe: AirframeParams, physics_dt: float) -> mujoco.MjModel:
     """Compile the shipped MJCF with the given airframe parameters (masses, inertia, rotor
-    positions); the rotors' thrust and moments are the env's wrench, not the model's."""
-    path = resources.files("bfc.envs") / "assets" / "hummingbird.xml"
+    positions, collision box); the rotors' thrust and moments are the env's wrench, not the model's."""
+    return airframe_spec(airframe, physics_dt).compile()
+
+
+def airframe_spec(airframe: AirframeParams, physics_dt: float = REFERENCE_PHYSICS_DT) -> mujoco.MjSpec:
+    """The shipped MJCF as an editable MjSpec with the airframe's values (the video adds visuals)."""
+    path = resources.files("bfc.envs") / "assets" / "quadrotor.xml"
     spec = mujoco.MjSpec.from_file(str(path))
     spec.option.timestep = physics_dt
     spec.option.gravity = [0.0, 0.0, -airframe.gravity]
-    body = spec.body("hummingbird")
+    body = spec.body(BODY)
     body.mass = airframe.body_mass
     body.inertia = list(airframe.inertia)
+    spec.geom("hull").size = list(airframe.hull_half_size)
     spec.body("imu").mass = airframe.imu_mass
-    for i, (dx, dy) in enumerate(ROTOR_DIRECTIONS):
+    for i, position in enumerate(airframe.rotor_positions):
         rotor = spec.body(f"rotor_{i}")
         rotor.mass = airframe.rotor_mass
-        rotor.pos = [dx * airframe.arm_length, dy * airframe.arm_length, airframe.rotor_height]
-    return spec.compile()
+        rotor.pos = list(position)
+    return spec
 
 
 class QuadrotorEnv(EnvBase):
@@ -169,7 +172,7 @@ class QuadrotorEnv(EnvBase):
         self.max_episode_steps = max(1, round(episode_seconds / self.dt))
         self.hover_speed = self.airframe.hover_speed
         self.max_rotor_speed = self.airframe.max_rotor_speed
-        self.ground_height = GROUND_HEIGHT
+        self.ground_height = self.airframe.ground_height
         self.num_threads = num_threads
         self.start_motors = start_motors
         self.physics_failures = 0  # envs whose state became non-finite (terminated and replaced)
@@ -216,16 +219,10 @@ class QuadrotorEnv(EnvBase):
         self._decay_sub = (np.empty((n, substeps, 1)), np.empty((n, substeps, 1)))
         self._decay_step = (np.empty((n, 1)), np.empty((n, 1)))
         self._apply_airframe_scale(np.ones(n, dtype=bool))
-        # the rotor layout as wrench rows: torque x = L sum dy_i T_i, torque y = -L sum dx_i T_i,
-        # torque z = moment_constant sum sign_i T_i (motor order of bfc.envs.params.ROTOR_DIRECTIONS)
-        a = self.airframe
-        self._torque_rows = np.array(
-            [
-                [a.arm_length * dy for _, dy in ROTOR_DIRECTIONS],
-                [-a.arm_length * dx for dx, _ in ROTOR_DIRECTIONS],
-                [a.moment_constant * sign for sign in ROTOR_YAW_SIGNS],
-            ]
-        ).T  # (4, 3): thrusts (..., 4) @ rows -> torques (..., 3)
+        # the rotor layout as wrench rows: torque x = sum y_i T_i, torque y = -sum x_i T_i,
+        # torque z = moment_constant sum spin_i T_i (AirframeParams.torque_rows)
+        self._torque_rows = np.array(self.airframe.torque_rows())  # (4, 3): thrusts (..., 4) @ rows -> torques
+        self._hull = self.airframe.hull_half_size
         self._cos_ground_tilt = math.cos(math.radians(self.termination.ground_tilt_deg))
         self._generator = torch.Generator()
         self._generator.manual_seed(0 if seed is None else seed)
@@ -462,7 +459,7 @@ class QuadrotorEnv(EnvBase):
                 f"action has NaN or infinite motor speeds for envs {bad}; a controller must output finite rad/s"
             )
         a = self.airframe
-        np.clip(cmd, 0.0, a.max_rotor_speed, out=cmd)
+        np.clip(cmd, a.min_rotor_speed, a.max_rotor_speed, out=cmd)
         w0 = self._motor_np
         up = cmd >= w0
         lag = w0 - cmd
@@ -554,7 +551,7 @@ class QuadrotorEnv(EnvBase):
         rp, tp = self.reward_params, self.termination
         px, py, pz, w, x, y, z = phys[:, 1:8].T
         # Lowest point of the collision box: is the drone touching the floor?
-        hx, hy, hz = HULL_HALF_SIZE
+        hx, hy, hz = self._hull
         lowest = pz - (hx * np.abs(2 * (x * z - w * y)) + hy * np.abs(2 * (y * z + w * x)) + hz * np.abs(cos_tilt))
         touching = lowest < 0.005
         tipped = cos_tilt < self._cos_ground_tilt

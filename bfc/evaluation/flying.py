@@ -37,6 +37,21 @@ def _goal_schedule(goal, dt: float):
 PROTOCOL_HZ = 250.0  # the paper's control rate, for controllers that do not record their own
 
 
+def airframe_of(controller, default: AirframeParams | None = None) -> AirframeParams:
+    """The nominal airframe `controller` flies: a policy file's (or an exported model's) own; else
+    `default` (a classical controller is built for it, a module flies it), the Hummingbird when None."""
+    from bfc.controllers import CONTROLLERS
+
+    path = isinstance(controller, (str, bytes)) or hasattr(controller, "__fspath__")
+    if path and is_onnx_path(controller):
+        from bfc.agent.onnx import read_metadata
+
+        return AirframeParams(**read_metadata(controller)["airframe"])
+    if path and str(controller) not in CONTROLLERS:
+        return load_policy(controller)[0].nominal_airframe
+    return default or AirframeParams()
+
+
 def fly(
     controller,
     starts,
@@ -51,6 +66,7 @@ def fly(
     observation_delay: float = 0.0,
     action_delay: float = 0.0,
     start_motors: str = "rest",
+    nominal: dict | None = None,
 ) -> TensorDict:
     """Fly all `starts` (n, 12) at once for `seconds`, never resetting mid-flight.
 
@@ -68,6 +84,8 @@ def fly(
     trained with (its control rate is its own).
     observation_delay / action_delay: seconds of latency, in whole control steps rounded down
     (bfc.transforms.latency); start_motors: "rest" or "hover" at release.
+    nominal: the AirframeParams fields of the airframe a classical controller (or a module) flies
+    and is built for (the Hummingbird when None); a policy file flies its own.
     Returns a TensorDict (n, T); see `run_flights`.
     """
     from bfc.controllers import CONTROLLERS
@@ -84,6 +102,7 @@ def fly(
         pass
     elif is_onnx_path(controller):
         controller, control_hz = onnx_controller(controller, control_hz)
+        nominal = controller.metadata["airframe"] if nominal is None else nominal
     elif isinstance(controller, (str, bytes)) or hasattr(controller, "__fspath__"):
         spec, controller = load_policy(controller)
     else:
@@ -97,6 +116,7 @@ def fly(
         physics_dt=float(physics_dt),
         seconds=seconds + 1.0,
         airframe=airframe,
+        nominal=nominal,
         noise=noise,
         seed=seed,
         observation_delay=observation_delay,
@@ -107,7 +127,7 @@ def fly(
         if external_force is not None:
             env.base_env.set_external_force(external_force)
         if name is not None:  # built for the nominal airframe, whatever body it flies
-            controller = CONTROLLERS[name](AirframeParams(), env.base_env.dt)
+            controller = CONTROLLERS[name](AirframeParams(**dict(nominal or {})), env.base_env.dt)
         first, schedule = _goal_schedule(goal, env.base_env.dt)
         env.base_env.set_goal(first)
         return run_flights(env, controller, starts, round(seconds / env.base_env.dt), goal_schedule=schedule)

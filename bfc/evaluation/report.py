@@ -280,7 +280,8 @@ def read_runs(*runs_dirs: Path) -> dict[str, list[dict]]:
 def fly_final_policies(by_variant: dict, protocol: TestProtocolConfig) -> None:
     """Each run's `policy_last.pt` (the final policy: never chosen on any starts) on the test
     starts of every set in TABLE2_STARTS: run["test"] = {set: success rate}."""
-    from bfc.evaluation.suites import START_SETS, score
+    from bfc.evaluation.flying import airframe_of
+    from bfc.evaluation.suites import score, start_set
 
     p = protocol
     for runs in by_variant.values():
@@ -288,7 +289,8 @@ def fly_final_policies(by_variant: dict, protocol: TestProtocolConfig) -> None:
             policy = run["dir"] / "policy_last.pt"
             run["test"] = {}
             for name in TABLE2_STARTS if policy.is_file() else ():
-                flights = fly(policy, START_SETS[name](p.num_starts, p.seed), seconds=p.seconds, seed=p.seed)
+                starts = start_set(name, p.num_starts, p.seed, airframe_of(policy))
+                flights = fly(policy, starts, seconds=p.seconds, seed=p.seed)
                 run["test"][name] = score(flights, p.threshold, p.hold_seconds)["success_rate"]
 
 

@@ -10,24 +10,26 @@ How (docs/evaluation.md, "Another simulator: RotorPy"):
   per control step, commanded by motor speeds (`cmd_motor_speeds`); a crashed drone is no longer
   integrated. Its state: x, v (world), q (x, y, z, w, body to world), w (body rates), wind
   (airspeed of the air, world), rotor_speeds.
-- Airframe `bfc`: bfc's "+" Hummingbird as a RotorPy params dict (mass and inertia of the rigid
-  body MuJoCo compiles, rotors at bfc's positions and spins, k_f, k_m = moment_constant k_f, bfc's
-  rotor drag) plus RotorPy's Hummingbird aerodynamics bfc does not model; one motor time constant,
-  the mean of bfc's two. Airframe `rotorpy`: RotorPy's own Hummingbird (an "X"): the policy's body
-  frame is RotorPy's turned +45 deg in yaw, so that its rotor r1 is the policy's front motor; the
-  odometry is expressed in that frame and the commands are permuted (front, right, back, left).
+- Airframe `bfc`: the policy's own bfc airframe as a RotorPy params dict (mass and inertia of the
+  rigid body MuJoCo compiles, rotors at bfc's positions and spins, k_f, k_m = moment_constant k_f,
+  bfc's rotor drag) plus RotorPy's aerodynamics bfc does not model; one motor time constant, the
+  mean of bfc's two. Airframe `rotorpy`: RotorPy's own vehicle for the policy's airframe (its
+  Hummingbird or its Crazyflie, both "X"): the commands are permuted into RotorPy's rotor order,
+  and for a "+" policy the policy's body frame is RotorPy's turned +45 deg in yaw, so that its
+  rotor r1 is the policy's front motor (the odometry is expressed in that frame).
 - Each control step the 18 odometry numbers are built as bfc's env builds them (position, velocity
   and velocity difference quotient in the world, ZYX roll/pitch/yaw, body rates and their
   difference quotient) and the policy runs as bfc's lean flight loop runs it (observation map,
   actor mean, action map).
 - The floor: RotorPy's own ground rule (Multirotor's `enable_ground`: clamp the height, no
   downward speed, horizontal damping, zero body rates, roll and pitch flattened), with the floor
-  where a level bfc drone's centre rests (GROUND_HEIGHT), since the batched vehicle has none.
+  where a level bfc drone's centre rests (the airframe's ground height), since the batched vehicle has none.
   A crash is bfc's rule (bfc's hull touching the floor tilted or fast, or leaving the box).
 """
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import time
 
@@ -39,18 +41,18 @@ from bfc import keys
 from bfc.agent import load_policy
 from bfc.config import ROTORPY_AIRFRAMES
 from bfc.envs import GOAL, REFERENCE_PHYSICS_DT, AirframeParams, TerminationParams
-from bfc.envs.params import ROTOR_DIRECTIONS, ROTOR_YAW_SIGNS
-from bfc.envs.quadrotor import GROUND_HEIGHT, HULL_HALF_SIZE, build_model
+from bfc.envs.quadrotor import BODY, build_model
 from bfc.envs.rotations import euler_to_quat, quat_to_euler
 from bfc.evaluation.flights import one_torch_thread
-from bfc.evaluation.flying import PROTOCOL_HZ, is_module, is_onnx_path, onnx_controller
+from bfc.evaluation.flying import PROTOCOL_HZ, airframe_of, is_module, is_onnx_path, onnx_controller
 from bfc.evaluation.protocol import TEST_SEED
-from bfc.evaluation.suites import CONDITIONS, START_SETS, horizontal_wind, robust_results
+from bfc.evaluation.suites import CONDITIONS, horizontal_wind, robust_results
 
 INSTALL_HINT = 'sim=rotorpy needs RotorPy: pip install -e ".[rotorpy]"'
-# RotorPy rotor i flies bfc motor ORDER[i] (bfc: 0 front, 1 left, 2 back, 3 right)
-_ORDER = {"bfc": (0, 1, 2, 3), "rotorpy": (0, 3, 2, 1)}  # X: r1 front-left, r2 front-right, ...
-_YAW_OFFSET = {"bfc": 0.0, "rotorpy": math.pi / 4}  # the policy's frame in RotorPy's body frame
+# RotorPy's own vehicles (an "X": r1 front-left, r2 front-right, r3 back-right, r4 back-left), by
+# the name of the bfc airframe they stand for: airframe "rotorpy" flies the one of the policy's
+_VEHICLES = {"hummingbird": "hummingbird_params", "crazyflie": "crazyflie_params"}
+_X_ORDER = (0, 3, 2, 1)  # RotorPy rotor i is bfc motor _X_ORDER[i] of an "x" (or the "+" turned 45 deg)
 # RotorPy's Hummingbird aerodynamics that bfc's env does not model (flown on bfc's airframe too)
 _RP_AERO = ("c_Dx", "c_Dy", "c_Dz", "k_z", "k_h", "k_flap")
 
@@ -66,27 +68,35 @@ def require_rotorpy() -> None:
         raise ValueError(f"{INSTALL_HINT} ({err})") from None
 
 
-def _hummingbird() -> dict:
-    from rotorpy.vehicles.hummingbird_params import quad_params
+def _vehicle(name: str = "hummingbird") -> dict:
+    """A copy of RotorPy's own params dict for the bfc airframe `name`."""
+    import importlib
 
+    if name not in _VEHICLES:
+        raise ValueError(
+            f"rotorpy_airframe=rotorpy flies RotorPy's own {' or '.join(_VEHICLES)}; this policy's airframe is "
+            f"{name!r}: use rotorpy_airframe=bfc"
+        )
+    quad_params = importlib.import_module(f"rotorpy.vehicles.{_VEHICLES[name]}").quad_params
     return {k: (dict(v) if isinstance(v, dict) else v) for k, v in quad_params.items()}
 
 
 def bfc_params(airframe: AirframeParams) -> dict:
-    """bfc's "+" airframe as a RotorPy params dict: the rigid body MuJoCo compiles from it (mass,
+    """A bfc airframe as a RotorPy params dict: the rigid body MuJoCo compiles from it (mass,
     inertia about the centre of mass), rotors at bfc's positions in bfc's motor order and spins,
-    thrust k_f w^2, yaw moment moment_constant k_f w^2, bfc's rotor drag; RotorPy's Hummingbird
-    values for the aerodynamics bfc lacks; the mean of bfc's two motor time constants."""
+    thrust k_f w^2, yaw moment moment_constant k_f w^2, bfc's rotor drag; RotorPy's own vehicle's
+    values for the aerodynamics bfc lacks (its Hummingbird's for an airframe it has no model of);
+    the mean of bfc's two motor time constants."""
     import mujoco
 
-    body = build_model(airframe, REFERENCE_PHYSICS_DT).body("hummingbird")
+    body = build_model(airframe, REFERENCE_PHYSICS_DT).body(BODY)
     rot = np.zeros(9)
     mujoco.mju_quat2Mat(rot, body.iquat)
     rot = rot.reshape(3, 3)
     inertia = rot @ np.diag(body.inertia) @ rot.T
     com = np.array(body.ipos)
     a = airframe
-    params = _hummingbird()
+    params = _vehicle(a.name if a.name in _VEHICLES else "hummingbird")
     params.update(
         mass=float(body.mass[0]),
         Ixx=inertia[0, 0],
@@ -96,16 +106,13 @@ def bfc_params(airframe: AirframeParams) -> dict:
         Ixz=inertia[0, 2],
         Iyz=inertia[1, 2],
         num_rotors=4,
-        rotor_pos={
-            f"r{i + 1}": np.array([dx * a.arm_length, dy * a.arm_length, a.rotor_height]) - com
-            for i, (dx, dy) in enumerate(ROTOR_DIRECTIONS)
-        },
-        rotor_directions=np.array(ROTOR_YAW_SIGNS),
+        rotor_pos={f"r{i + 1}": np.array(p) - com for i, p in enumerate(a.rotor_positions)},
+        rotor_directions=np.array(a.rotor_spins),
         k_eta=a.motor_constant,
         k_m=a.moment_constant * a.motor_constant,
         k_d=a.rotor_drag_coefficient,
         tau_m=0.5 * (a.time_constant_up + a.time_constant_down),
-        rotor_speed_min=0.0,
+        rotor_speed_min=a.min_rotor_speed,
         rotor_speed_max=a.max_rotor_speed,
         motor_noise_std=0.0,
     )
@@ -115,10 +122,11 @@ def bfc_params(airframe: AirframeParams) -> dict:
 _SCALED = ("mass", "Ixx", "Iyy", "Izz", "k_eta", "k_m", "tau_m")
 
 
-def hummingbird_params(nominal: AirframeParams, flown: AirframeParams) -> dict:
-    """RotorPy's own Hummingbird, with the mismatch of `flown` against `nominal` (bfc airframes,
-    e.g. a robustness row's) applied as the same ratios of mass, inertia, k_eta, k_m and tau_m."""
-    params = _hummingbird()
+def rotorpy_params(nominal: AirframeParams, flown: AirframeParams) -> dict:
+    """RotorPy's own vehicle for the nominal airframe (its Hummingbird or Crazyflie), with the
+    mismatch of `flown` against `nominal` (e.g. a robustness row's) applied as the same ratios of
+    mass, inertia, k_eta, k_m and tau_m."""
+    params = _vehicle(nominal.name)
     if flown != nominal:
         before, after = bfc_params(nominal), bfc_params(flown)
         for k in _SCALED:
@@ -129,7 +137,7 @@ def hummingbird_params(nominal: AirframeParams, flown: AirframeParams) -> dict:
 def flight_params(kind: str, nominal: AirframeParams, flown: AirframeParams) -> dict:
     if kind not in ROTORPY_AIRFRAMES:
         raise ValueError(f"rotorpy_airframe must be one of {', '.join(ROTORPY_AIRFRAMES)}, got {kind!r}")
-    return bfc_params(flown) if kind == "bfc" else hummingbird_params(nominal, flown)
+    return bfc_params(flown) if kind == "bfc" else rotorpy_params(nominal, flown)
 
 
 def wind_speed_for_drag(params: dict, newtons: float) -> float:
@@ -174,7 +182,12 @@ class RotorPyQuads:
     """n RotorPy vehicles of one params dict, integrated together (BatchedMultirotor), seen and
     commanded as bfc's env is: bfc's odometry in the policy's frame, motor speeds in bfc's order."""
 
-    def __init__(self, params: dict, n: int, dt: float, airframe: str = "bfc", wind=None):
+    def __init__(
+        self, params: dict, n: int, dt: float, airframe: str = "bfc", wind=None, body: AirframeParams | None = None
+    ):
+        """airframe: "bfc" (params are `body`'s) or "rotorpy" (RotorPy's own X vehicle);
+        body: the bfc airframe the policy knows (its layout, its hull for the floor and the crash
+        rule; the Hummingbird by default)."""
         from rotorpy.vehicles.multirotor import BatchedMultirotor, BatchedMultirotorParams
 
         if airframe not in ROTORPY_AIRFRAMES:
@@ -188,14 +201,16 @@ class RotorPyQuads:
             self.state["wind"][:] = torch.as_tensor(wind, dtype=f64)
         batch = BatchedMultirotorParams([params] * n, n, cpu)
         self.vehicle = BatchedMultirotor(batch, n, self.state, cpu, control_abstraction="cmd_motor_speeds")
-        self.order = list(_ORDER[airframe])
+        body = body or AirframeParams()
+        own = airframe == "rotorpy"
+        self.order = list(_X_ORDER if own else range(4))
         self.inverse = [self.order.index(j) for j in range(4)]
-        half = 0.5 * _YAW_OFFSET[airframe]
+        half = 0.5 * (math.pi / 4 if own and body.layout == "+" else 0.0)
         self.q_bp = torch.tensor([math.cos(half), 0.0, 0.0, math.sin(half)], dtype=f64)  # policy frame in body
         c, s = math.cos(2 * half), math.sin(2 * half)
         self.r_bp = torch.tensor([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]], dtype=f64)
         self.max_speed = float(params["rotor_speed_max"])
-        self.ground = GROUND_HEIGHT
+        self.ground, self.hull = body.ground_height, body.hull_half_size
         self.beta = min(0.5, max(0.1, float(params.get("ground_friction_beta", 0.3))))  # RotorPy's clamp
         t = TerminationParams()
         self.termination, self.cos_tipped = t, math.cos(math.radians(t.ground_tilt_deg))
@@ -278,7 +293,7 @@ class RotorPyQuads:
         w, x, y, z = self.quaternion().unbind(-1)
         px, py, pz = self.state["x"].unbind(-1)
         cos_tilt = 1 - 2 * (x * x + y * y)
-        hx, hy, hz = HULL_HALF_SIZE
+        hx, hy, hz = self.hull
         lowest = pz - (hx * (2 * (x * z - w * y)).abs() + hy * (2 * (y * z + w * x)).abs() + hz * cos_tilt.abs())
         t = self.termination
         touching = lowest < 0.005
@@ -286,13 +301,14 @@ class RotorPyQuads:
         return (touching & ((cos_tilt < self.cos_tipped) | (prev_vz < -t.crash_speed))) | outside
 
 
-def _resolve(controller, control_hz):
-    """(spec or None, the network or controller module, its control rate)."""
+def _resolve(controller, control_hz, nominal: AirframeParams | None = None):
+    """(spec or None, the network or controller module, its control rate); a classical controller
+    is built for `nominal` (the Hummingbird when None)."""
     from bfc.controllers import CONTROLLERS
 
     if isinstance(controller, (str, bytes)) and str(controller) in CONTROLLERS:
         rate = float(control_hz or PROTOCOL_HZ)
-        return None, CONTROLLERS[str(controller)](AirframeParams(), 1.0 / rate), rate
+        return None, CONTROLLERS[str(controller)](nominal or AirframeParams(), 1.0 / rate), rate
     if is_module(controller):
         return None, controller, float(control_hz or PROTOCOL_HZ)
     if is_onnx_path(controller):
@@ -318,12 +334,14 @@ def fly_rotorpy(
     wind=None,
     wind_drag=None,
     control_hz=None,
+    nominal: AirframeParams | None = None,
 ) -> TensorDict:
     """Fly all `starts` (n, 12) in RotorPy for `seconds`: `fly`'s arguments and trajectory keys.
 
-    controller: a policy.pt path (flown at its own rate, through its maps), a classical controller
-    name (built for bfc's nominal airframe, 250 Hz) or a TensorDictModule (odometry, goal -> action).
-    airframe: "bfc" (bfc's "+" airframe in RotorPy) or "rotorpy" (RotorPy's X Hummingbird).
+    controller: a policy.pt path (flown at its own rate, through its maps, on its own airframe), a
+    classical controller name (built for `nominal`, the Hummingbird when None, 250 Hz) or a
+    TensorDictModule (odometry, goal -> action) flying `nominal`.
+    airframe: "bfc" (the policy's bfc airframe in RotorPy) or "rotorpy" (RotorPy's own vehicle of it).
     flown: AirframeParams overrides of the flown body (a robustness row's mismatch).
     wind: the air's velocity (m/s, world), (3,) or (n, 3); wind_drag instead: forces (N, world,
     horizontal), (3,) or (n, 3), each flown as the air in its direction whose drag on the vehicle
@@ -336,8 +354,8 @@ def fly_rotorpy(
         raise ValueError(f"starts must have shape (n, 12), got {tuple(starts.shape)}")
     if seconds <= 0:
         raise ValueError(f"seconds must be > 0, got {seconds}")
-    spec, net, rate = _resolve(controller, control_hz)
-    nominal = dict(spec.airframe) if spec is not None else {}
+    spec, net, rate = _resolve(controller, control_hz, nominal)
+    nominal = dict(spec.airframe) if spec is not None else dataclasses.asdict(nominal or AirframeParams())
     params = flight_params(airframe, AirframeParams(**nominal), AirframeParams(**{**nominal, **dict(flown or {})}))
     n, dt = starts.shape[0], 1.0 / rate
     steps = round(seconds / dt)
@@ -346,7 +364,7 @@ def fly_rotorpy(
         size = force.norm(dim=-1, keepdim=True)
         speeds = torch.tensor([[wind_speed_for_drag(params, float(f)) if f > 0 else 0.0] for f in size[:, 0]])
         wind = torch.where(size > 0, force / size.clamp(min=1e-12), 0.0) * speeds
-    quads = RotorPyQuads(params, n, dt, airframe, wind)
+    quads = RotorPyQuads(params, n, dt, airframe, wind, AirframeParams(**nominal))
     quads.place(starts)
     goal_t = torch.as_tensor(goal, dtype=torch.float32).expand(n, 3).clone()
     begin = getattr(net, "begin_flight", None)
@@ -406,32 +424,56 @@ def fly_rotorpy(
 
 
 def fly_condition_rotorpy(
-    controller, name: str, num_starts: int = 100, seed: int = TEST_SEED, seconds: float = 10.0, airframe: str = "bfc"
+    controller,
+    name: str,
+    num_starts: int = 100,
+    seed: int = TEST_SEED,
+    seconds: float = 10.0,
+    airframe: str = "bfc",
+    nominal: AirframeParams | None = None,
 ) -> TensorDict:
     """`suites.fly_condition` in RotorPy: the row's starts and mismatch; its wind (a force in
-    bfc) as the air whose drag at hover is that force (see `fly_rotorpy`'s wind_drag)."""
+    bfc) as the air whose drag at hover is that force (see `fly_rotorpy`'s wind_drag). The
+    controller flies its airframe: a policy's own, else `nominal` (the Hummingbird when None)."""
     if name not in CONDITIONS:
         raise ValueError(f"unknown condition {name!r}; available: {', '.join(CONDITIONS)}")
     c = CONDITIONS[name]
-    starts = START_SETS[c.starts](num_starts, seed)
-    wind = horizontal_wind(num_starts, c.wind_newtons, seed) if c.wind_newtons else None
-    return fly_rotorpy(controller, starts, seconds=seconds, airframe=airframe, flown=c.flown_airframe(), wind_drag=wind)
+    body = airframe_of(controller, nominal)
+    starts = c.starts_for(num_starts, seed, body)
+    wind = horizontal_wind(num_starts, c.wind(body), seed) if c.wind_newtons else None
+    return fly_rotorpy(
+        controller,
+        starts,
+        seconds=seconds,
+        airframe=airframe,
+        flown=c.flown_airframe(body),
+        wind_drag=wind,
+        nominal=body,
+    )
 
 
 def robust_results_rotorpy(
-    controllers: dict, names=None, num_starts: int = 100, seed: int = TEST_SEED, protocol=None, airframe: str = "bfc"
+    controllers: dict,
+    names=None,
+    num_starts: int = 100,
+    seed: int = TEST_SEED,
+    protocol=None,
+    airframe: str = "bfc",
+    nominal: AirframeParams | None = None,
 ) -> dict:
     """`suites.robust_results` in RotorPy: {row: {label: score}}, each score with the row's wall
     clock (`wall_seconds`) and, for the wind row, the RotorPy wind speed flown (`wind_m_s`)."""
     started = [time.perf_counter()]
 
-    def fly_row(controller, name, n, row_seed, seconds):
+    def fly_row(controller, name, n, row_seed, seconds, nominal):
         started[0] = time.perf_counter()
-        return fly_condition_rotorpy(controller, name, n, row_seed, seconds, airframe)
+        return fly_condition_rotorpy(controller, name, n, row_seed, seconds, airframe, nominal)
 
     def timed(name, label, flights) -> dict:
         speed = flights.get("wind")[:, 0].norm(dim=-1).max().item()
         wind = {"wind_m_s": round(speed, 2)} if speed else {}
         return {"wall_seconds": round(time.perf_counter() - started[0], 1), **wind}
 
-    return robust_results(controllers, names, num_starts, seed, protocol, on_flights=timed, fly_row=fly_row)
+    return robust_results(
+        controllers, names, num_starts, seed, protocol, on_flights=timed, fly_row=fly_row, airframe=nominal
+    )

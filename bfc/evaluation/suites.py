@@ -23,6 +23,7 @@ the same starts on every machine; seed 0 is the test set the docs report (TEST_S
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import zlib
 from dataclasses import dataclass, field
@@ -30,7 +31,6 @@ from dataclasses import dataclass, field
 import torch
 
 from bfc.envs import AirframeParams
-from bfc.envs.quadrotor import GROUND_HEIGHT
 from bfc.envs.rotations import quat_to_euler
 from bfc.evaluation.judge import judge
 from bfc.evaluation.metrics import hover_error
@@ -71,10 +71,12 @@ def any_starts(n: int = 100, seed: int = TEST_SEED) -> torch.Tensor:
     return s.float()
 
 
-def ground_starts(n: int = 100, seed: int = TEST_SEED) -> torch.Tensor:
+def ground_starts(n: int = 100, seed: int = TEST_SEED, airframe: AirframeParams | None = None) -> torch.Tensor:
+    """Level and at rest on the floor (the airframe's resting height; the Hummingbird's by default)."""
     g = _generator("ground", seed)
     s = torch.zeros(n, 12, dtype=torch.float64)
-    s[:, 0], s[:, 1], s[:, 2] = _uniform(g, n, -2, 2), _uniform(g, n, -2, 2), GROUND_HEIGHT
+    s[:, 0], s[:, 1] = _uniform(g, n, -2, 2), _uniform(g, n, -2, 2)
+    s[:, 2] = (airframe or HUMMINGBIRD).ground_height
     s[:, 5] = _uniform(g, n, -math.pi, math.pi)
     return s.float()
 
@@ -106,10 +108,20 @@ START_SETS = {
 }
 
 
+def start_set(name: str, n: int = 100, seed: int = TEST_SEED, airframe: AirframeParams | None = None) -> torch.Tensor:
+    """The start set `name` (START_SETS) for `airframe`: a ground start rests at its own height."""
+    if name not in START_SETS:
+        raise ValueError(f"unknown start set {name!r}; available: {', '.join(START_SETS)}")
+    return ground_starts(n, seed, airframe) if name == "ground" else START_SETS[name](n, seed)
+
+
 def horizontal_wind(n: int, newtons: float = 1.0, seed: int = TEST_SEED) -> torch.Tensor:
     """(n, 3) a horizontal force of `newtons` in a random direction per start."""
     angle = _uniform(_generator("wind", seed), n, -math.pi, math.pi)
     return torch.stack((angle.cos(), angle.sin(), torch.zeros(n, dtype=torch.float64)), -1) * newtons
+
+
+HUMMINGBIRD = AirframeParams()  # the airframe the rows' winds are given in newtons for
 
 
 @dataclass
@@ -118,11 +130,18 @@ class Condition:
 
     starts: str = "protocol"
     airframe: dict = field(default_factory=dict)  # multipliers of AirframeParams fields
-    wind_newtons: float = 0.0
+    wind_newtons: float = 0.0  # on the Hummingbird; another airframe gets the same share of its weight
     observation_delay: float = 0.0  # s: the odometry the controller sees is this old
     action_delay: float = 0.0  # s: its commands reach the motors this late
     noise: dict | None = None  # a `noise` section: what the controller sees (the judge sees the truth)
     start_motors: str = "rest"  # or "hover": the motors spinning at hover at release
+
+    def wind(self, airframe: AirframeParams | None = None) -> float:
+        """N: the row's wind on `airframe`, the same share of its weight as on the Hummingbird."""
+        return self.wind_newtons * ((airframe or HUMMINGBIRD).weight / HUMMINGBIRD.weight)
+
+    def starts_for(self, n: int, seed: int, airframe: AirframeParams | None = None) -> torch.Tensor:
+        return start_set(self.starts, n, seed, airframe)
 
     def flown_airframe(self, nominal: AirframeParams | None = None) -> dict | None:
         """The AirframeParams overrides of the flown body (None: nominal)."""
@@ -147,7 +166,8 @@ CONDITIONS = {
     "motor constant +20%": Condition(airframe={"motor_constant": 1.2}),
     "motor lag x3": Condition(airframe={"time_constant_up": 3.0, "time_constant_down": 3.0}),
     "inertia x1.5": Condition(airframe={"inertia": 1.5}),
-    "wind 1 N": Condition(wind_newtons=1.0),
+    "wind 1 N": Condition(wind_newtons=1.0),  # the default's training wind (14% of the weight)
+    "wind 2 N": Condition(wind_newtons=2.0),  # twice the training wind
 }
 
 
@@ -184,13 +204,23 @@ def condition(name: str) -> Condition:
     raise ValueError(f"unknown condition {name!r}; available: {', '.join(available)}")
 
 
-def fly_condition(controller, name: str, num_starts: int = 100, seed: int = TEST_SEED, seconds: float = 10.0, **kw):
-    """Fly `controller` (anything `fly` takes) under the named condition (a row of suite=robust)."""
-    from bfc.evaluation.flying import fly
+def fly_condition(
+    controller,
+    name: str,
+    num_starts: int = 100,
+    seed: int = TEST_SEED,
+    seconds: float = 10.0,
+    airframe: AirframeParams | None = None,
+    **kw,
+):
+    """Fly `controller` (anything `fly` takes) under the named condition (a row of suite=robust or
+    suite=hardware) on its airframe: a policy's own, else `airframe` (the Hummingbird by default)."""
+    from bfc.evaluation.flying import airframe_of, fly
 
     c = condition(name)
-    starts = START_SETS[c.starts](num_starts, seed)
-    wind = horizontal_wind(num_starts, c.wind_newtons, seed) if c.wind_newtons else None
+    nominal = airframe_of(controller, airframe)
+    starts = c.starts_for(num_starts, seed, nominal)
+    wind = horizontal_wind(num_starts, c.wind(nominal), seed) if c.wind_newtons else None
     hardware = {
         "observation_delay": c.observation_delay,
         "action_delay": c.action_delay,
@@ -203,8 +233,9 @@ def fly_condition(controller, name: str, num_starts: int = 100, seed: int = TEST
         starts,
         seconds=seconds,
         seed=seed,
-        airframe=c.flown_airframe(),
+        airframe=c.flown_airframe(nominal),
         external_force=wind,
+        nominal=dataclasses.asdict(nominal),
         **hardware,
         **kw,
     )
@@ -227,12 +258,14 @@ def robust_results(
     protocol=None,
     on_flights=None,
     fly_row=None,
+    airframe: AirframeParams | None = None,
 ) -> dict:
-    """{condition: {label: score}} for every controller (label -> anything `fly` takes) and condition.
+    """{condition: {label: score}} for every controller (label -> anything `fly` takes) and condition,
+    each on its airframe: a policy's own, else `airframe` (the Hummingbird by default).
 
     on_flights(condition, label, flights), if given, sees each flight set before it is dropped
     (evaluate.py's video=true keeps the poses of a few flights of each row); a dict it returns is
-    added to that score. fly_row(controller, condition, num_starts, seed, seconds) flies a row
+    added to that score. fly_row(controller, condition, num_starts, seed, seconds, airframe) flies a row
     (default `fly_condition`: MuJoCo; RotorPy passes its own)."""
     fly_row = fly_row or fly_condition
     seconds = protocol.seconds if protocol is not None else 10.0
@@ -242,7 +275,7 @@ def robust_results(
     for name in CONDITIONS if names is None else names:
         results[name] = {}
         for label, c in controllers.items():
-            flights = fly_row(c, name, num_starts, seed, seconds)
+            flights = fly_row(c, name, num_starts, seed, seconds, airframe)
             extra = on_flights(name, label, flights) if on_flights is not None else None
             results[name][label] = {**score(flights, threshold, hold), **(extra or {})}
     return results

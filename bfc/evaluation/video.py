@@ -22,14 +22,13 @@ import math
 import re
 from dataclasses import dataclass
 from fractions import Fraction
-from importlib import resources
 from pathlib import Path
 
 import numpy as np
 import torch
 
 from bfc import keys
-from bfc.envs.params import ROTOR_DIRECTIONS, AirframeParams
+from bfc.envs.params import AirframeParams
 from bfc.envs.rotations import euler_to_quat
 from bfc.evaluation.judge import flight_dt
 
@@ -135,11 +134,14 @@ def slug(name: str) -> str:
     return re.sub(r"[^a-z0-9]+", "_", name).strip("_")
 
 
-def render_model(width: int, height: int):
-    """The shipped asset with visual-only geoms and a lit floor (the physics model is untouched)."""
+def render_model(width: int, height: int, airframe: AirframeParams | None = None):
+    """The airframe's model with visual-only geoms and a lit floor (the physics model is untouched)."""
     import mujoco
 
-    spec = mujoco.MjSpec.from_file(str(resources.files("bfc.envs") / "assets" / "hummingbird.xml"))
+    from bfc.envs.quadrotor import BODY, airframe_spec
+
+    air = airframe or AirframeParams()
+    spec = airframe_spec(air)
     spec.add_texture(
         name="grid",
         type=mujoco.mjtTexture.mjTEXTURE_2D,
@@ -167,22 +169,25 @@ def render_model(width: int, height: int):
     spec.visual.headlight.diffuse = [0.4, 0.4, 0.4]
     spec.visual.rgba.haze = [0.93, 0.95, 0.98, 1]
     spec.stat.extent = 6.0  # fog/haze scale: the flight box, not the tiny drone
-    body = spec.body("hummingbird")
-    air = AirframeParams()
+    body = spec.body(BODY)
     visual = {"contype": 0, "conaffinity": 0, "group": 1, "mass": 0}
-    body.add_geom(type=mujoco.mjtGeom.mjGEOM_BOX, size=[0.045, 0.045, 0.02], rgba=[0.15, 0.15, 0.18, 1], **visual)
-    for i, (dx, dy) in enumerate(ROTOR_DIRECTIONS):
-        tip = [dx * air.arm_length, dy * air.arm_length, air.rotor_height]
+    k = air.arm_length / 0.17  # the drawing is the Hummingbird's, scaled to the arm
+    body.add_geom(
+        type=mujoco.mjtGeom.mjGEOM_BOX, size=[0.045 * k, 0.045 * k, 0.02 * k], rgba=[0.15, 0.15, 0.18, 1], **visual
+    )
+    for tip in air.rotor_positions:
         body.add_geom(
             type=mujoco.mjtGeom.mjGEOM_CAPSULE,
             fromto=[0, 0, 0, *tip],
-            size=[0.009, 0, 0],
+            size=[0.009 * k, 0, 0],
             rgba=[0.2, 0.2, 0.22, 1],
             **visual,
         )
-        front = i == 0 and dx > 0  # rotor 0 is the front (+x): red, so the heading shows
+        front = tip[0] > 1e-9  # the rotors ahead of the centre (+x): red, so the heading shows
         rgba = [0.85, 0.15, 0.1, 0.75] if front else [0.1, 0.35, 0.8, 0.6]
-        body.add_geom(type=mujoco.mjtGeom.mjGEOM_CYLINDER, pos=tip, size=[0.1, 0.004, 0], rgba=rgba, **visual)
+        body.add_geom(
+            type=mujoco.mjtGeom.mjGEOM_CYLINDER, pos=list(tip), size=[0.1 * k, 0.004 * k, 0], rgba=rgba, **visual
+        )
     model = spec.compile()
     model.vis.global_.offwidth, model.vis.global_.offheight = max(width, 640), max(height, 480)
     return model

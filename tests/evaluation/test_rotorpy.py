@@ -2,8 +2,10 @@
 mapping's signs against bfc's own env, RotorPy's batched vehicle against its reference one, and
 evaluate.py's `sim` keys."""
 
+import dataclasses
 import importlib.util
 import json
+import math
 import subprocess
 import sys
 from pathlib import Path
@@ -13,6 +15,7 @@ import numpy as np
 import pytest
 import torch
 
+from bfc.config import airframe_params
 from bfc.envs import AirframeParams, QuadrotorEnv
 from bfc.evaluation import judge, protocol_starts
 from bfc.evaluation.rotorpy_sim import (
@@ -71,8 +74,8 @@ def test_a_classical_controller_flies_in_rotorpy_too():
     assert bool(((pos - torch.tensor([0.0, 0.0, 1.5])).norm(dim=-1) < 0.3).all()), pos
 
 
-def _bfc_response(command: torch.Tensor, steps: int = 5) -> torch.Tensor:
-    env = QuadrotorEnv(1, control_hz=100.0, start_motors="hover", num_threads=1)
+def _bfc_response(command: torch.Tensor, body: AirframeParams, steps: int = 5) -> torch.Tensor:
+    env = QuadrotorEnv(1, control_hz=100.0, start_motors="hover", num_threads=1, airframe=body)
     start = torch.zeros(1, 12, dtype=torch.float64)
     start[0, 2] = 1.5
     env.restart(torch.ones(1, dtype=torch.bool), start)
@@ -82,30 +85,38 @@ def _bfc_response(command: torch.Tensor, steps: int = 5) -> torch.Tensor:
     return flat[0, 0:18].double()
 
 
-def _rotorpy_response(command: torch.Tensor, airframe: str, steps: int = 5) -> torch.Tensor:
-    quads = RotorPyQuads(flight_params(airframe, NOMINAL, NOMINAL), 1, 0.01, airframe)
+def _rotorpy_response(command: torch.Tensor, airframe: str, body: AirframeParams, steps: int = 5) -> torch.Tensor:
+    quads = RotorPyQuads(flight_params(airframe, body, body), 1, 0.01, airframe, body=body)
     start = torch.zeros(1, 12)
     start[0, 2] = 1.5
-    quads.place(start, motor_speeds=HOVER)
+    quads.place(start, motor_speeds=body.hover_speed)
     for _ in range(steps):
         quads.step(command)
     return quads.odometry()[0].double()
 
 
-# bfc's motor order: 0 front (+x) CW, 1 left (+y) CCW, 2 back (-x) CW, 3 right (-y) CCW
-DIFFERENTIALS = {
-    0: [0.0, 30.0, 0.0, -30.0],  # roll: left up, right down
-    1: [-30.0, 0.0, 30.0, 0.0],  # pitch: back up, front down
-    2: [100.0, -100.0, 100.0, -100.0],  # yaw: the CW pair up (the reaction moment is weak)
-}
+def _differential(body: AirframeParams, axis: int) -> list[float]:
+    """rad/s added to each motor to turn the body about `axis` only, from the rotors' positions and
+    spins: roll by the +y side up, pitch by the back up, yaw by the clockwise pair up (the
+    reaction moment is weak); the Hummingbird's (+-30, +-30, +-100) rad/s, scaled to the hover."""
+    x, y = ([p[i] for p in body.rotor_positions] for i in (0, 1))
+    size = (0.0655 if axis < 2 else 0.218) * body.hover_speed
+    signs = {0: [math.copysign(1, v) if abs(v) > 1e-9 else 0 for v in y]}
+    signs[1] = [-math.copysign(1, v) if abs(v) > 1e-9 else 0 for v in x]
+    signs[2] = list(body.rotor_spins)
+    return [size * s for s in signs[axis]]
 
 
 @needs_rotorpy
+@pytest.mark.parametrize("name", ["hummingbird", "crazyflie"])
 @pytest.mark.parametrize("airframe", ["bfc", "rotorpy"])
 @pytest.mark.parametrize("axis", [0, 1, 2], ids=["roll", "pitch", "yaw"])
-def test_a_differential_command_turns_rotorpy_as_it_turns_bfc(axis, airframe):
-    command = torch.tensor([DIFFERENTIALS[axis]]) + HOVER
-    ours, theirs = _bfc_response(command), _rotorpy_response(command, airframe)
+def test_a_differential_command_turns_rotorpy_as_it_turns_bfc(axis, airframe, name):
+    """bfc's airframe in RotorPy, and RotorPy's own vehicle of it (its Hummingbird, its Crazyflie),
+    turn the way bfc's env does under the same motor commands."""
+    body = airframe_params(name)
+    command = torch.tensor([_differential(body, axis)]) + body.hover_speed
+    ours, theirs = _bfc_response(command, body), _rotorpy_response(command, airframe, body)
     rate, angle = 12 + axis, 9 + axis  # body rate and Euler angle of that axis (bfc's odometry)
     assert abs(ours[rate]) > 0.1  # the command does turn bfc's drone
     assert torch.sign(theirs[rate]) == torch.sign(ours[rate]), (ours[12:15], theirs[12:15])
@@ -114,6 +125,19 @@ def test_a_differential_command_turns_rotorpy_as_it_turns_bfc(axis, airframe):
     assert bool((theirs[others].abs() < 0.1 * theirs[rate].abs()).all()), theirs[12:15]
     if airframe == "bfc":  # the same body and motors: the same turn, up to the motor lag's form
         assert 0.7 < float(theirs[rate] / ours[rate]) < 1.4, (ours[rate], theirs[rate])
+
+
+@needs_rotorpy
+def test_rotorpy_airframe_rotorpy_flies_rotorpys_own_crazyflie():
+    from rotorpy.vehicles.crazyflie_params import quad_params
+
+    body = airframe_params("crazyflie")
+    params = flight_params("rotorpy", body, body)
+    assert params["mass"] == quad_params["mass"] and params["Izz"] == quad_params["Izz"]  # RotorPy's own values
+    heavier = flight_params("rotorpy", body, dataclasses.replace(body, body_mass=1.3 * body.body_mass))
+    assert heavier["mass"] == pytest.approx(1.3 * quad_params["mass"])  # a mismatch row: the same ratio
+    with pytest.raises(ValueError, match="RotorPy's own hummingbird or crazyflie"):
+        flight_params("rotorpy", airframe_params("x500"), airframe_params("x500"))
 
 
 @needs_rotorpy

@@ -10,13 +10,13 @@ from bfc import keys
 from bfc.config import compose
 from bfc.controllers import CONTROLLERS
 from bfc.envs import AirframeParams
-from bfc.envs.quadrotor import GROUND_HEIGHT
 from bfc.envs.rotations import euler_to_quat
 from bfc.evaluation import TEST_SEED, VALIDATION_SEED, fly, protocol_starts, success
 from bfc.evaluation.metrics import tilt_degrees
 from bfc.evaluation.suites import (
     CONDITIONS,
     any_starts,
+    fly_condition,
     ground_starts,
     harsh_starts,
     horizontal_wind,
@@ -50,8 +50,11 @@ def test_any_starts_cover_every_attitude_including_upside_down():
 
 def test_ground_starts_sit_level_on_the_floor():
     s = ground_starts(200, seed=0)
-    assert torch.allclose(s[:, 2], torch.full((200,), GROUND_HEIGHT))
+    assert torch.allclose(s[:, 2], torch.full((200,), AirframeParams().ground_height))
     assert (s[:, 3:5] == 0).all() and s[:, 5].abs().max() > 2.5 and (s[:, 6:] == 0).all()
+    small = AirframeParams(hull_half_size=(0.06, 0.06, 0.015))  # each airframe rests on its own hull
+    assert torch.equal(ground_starts(200, 0, small)[:, :2], s[:, :2])
+    assert torch.allclose(ground_starts(200, 0, small)[:, 2], torch.full((200,), 0.015))
 
 
 def test_sets_are_reproducible_and_the_selection_starts_are_not_the_test_starts():
@@ -139,3 +142,15 @@ def test_wind_is_horizontal_with_the_given_strength_and_the_table_reads_the_scor
     lines = robust_table({"protocol": {"lee": s}})
     assert lines[-1].startswith("| protocol | 1.00, ") and "cm" in lines[-1]
     assert set(CONDITIONS) >= {"protocol", "harsh", "any", "ground", "mass +30%", "wind 1 N"}
+
+
+def test_the_rows_follow_the_airframe_flown():
+    from bfc.config import airframe_params
+
+    cf, hb = airframe_params("crazyflie"), AirframeParams()
+    assert CONDITIONS["wind 1 N"].wind() == 1.0 and CONDITIONS["wind 2 N"].wind(hb) == 2.0
+    assert CONDITIONS["wind 1 N"].wind(cf) == pytest.approx(cf.weight / hb.weight)  # the same share of its weight
+    assert CONDITIONS["mass +30%"].flown_airframe(cf)["body_mass"] == pytest.approx(1.3 * cf.body_mass)
+    flights = fly_condition("lee", "ground", 3, seconds=3.0, airframe=cf)
+    z = flights.get(("state", "position"))[..., 2]
+    assert z[:, 0].max() < 0.02 and (z[:, -1] > 1.3).all()  # from its own floor height up to the goal
