@@ -1,12 +1,14 @@
-"""`python -m bfc.export policy.pt policy.onnx|policy.h`: export a policy file for deployment.
+"""`python -m bfc.export policy.pt policy.onnx|policy.h|app_dir`: export a policy file for deployment.
 
 The exports live with the policy contract: ONNX in bfc.agent.onnx (`export_onnx`, `OnnxController`,
 `read_metadata`), C in bfc.agent.c_export (`export_c`: one self-contained C99 header) and
-bfc.agent.c_controller (`CController`, which flies that header through ctypes). This module is
+bfc.agent.c_controller (`CController`, which flies that header through ctypes), a Crazyflie
+firmware app in bfc.agent.crazyflie_app (`export_crazyflie`, `CrazyflieAppController`). This module is
 the command line and the public names users import
 (`from bfc.export import export_onnx, export_c, OnnxController, CController`). See docs/export.md.
 
-The format is `--format onnx|c`, or else the output's suffix (.onnx, .h). Exit status 2, with one
+The format is `--format onnx|c|crazyflie`, or else the output's suffix (.onnx, .h; crazyflie
+writes a folder and is always named). Exit status 2, with one
 `error: ...` line, on a missing or invalid policy file, a policy the format cannot express, an
 unwritable output path, a format the output name contradicts or does not tell, or a missing extra.
 """
@@ -20,9 +22,19 @@ from pathlib import Path
 from bfc.agent import read_policy
 from bfc.agent.c_controller import CController
 from bfc.agent.c_export import export_c
+from bfc.agent.crazyflie_app import CrazyflieAppController, export_crazyflie
 from bfc.agent.onnx import OnnxController, export_onnx, read_metadata
 
-__all__ = ["CController", "OnnxController", "export_c", "export_onnx", "main", "read_metadata"]
+__all__ = [
+    "CController",
+    "CrazyflieAppController",
+    "OnnxController",
+    "export_c",
+    "export_crazyflie",
+    "export_onnx",
+    "main",
+    "read_metadata",
+]
 
 FORMATS = {".onnx": "onnx", ".h": "c"}
 
@@ -59,26 +71,31 @@ def main(argv=None) -> int:
         "inside (docs/export.md).",
     )
     parser.add_argument("policy", help="policy.pt written by train.py (e.g. pretrained/policy.pt)")
-    parser.add_argument("output", help="the file to write: policy.onnx (ONNX) or policy.h (C99 header)")
+    parser.add_argument(
+        "output", help="what to write: policy.onnx (ONNX), policy.h (C99 header) or a folder (--format crazyflie)"
+    )
     parser.add_argument(
         "--format",
-        choices=("onnx", "c"),
+        choices=("onnx", "c", "crazyflie"),
         default=None,
-        help="onnx or c (default: from the output's suffix, .onnx -> onnx, .h -> c)",
+        help="onnx, c, or crazyflie (a Crazyflie firmware app folder; default: from the output's suffix, "
+        ".onnx -> onnx, .h -> c)",
     )
     parser.add_argument("--opset", type=int, default=None, help="ONNX opset (default: the exporter's, 20)")
     args = parser.parse_args(argv)
     try:
         fmt = output_format(args.output, args.format)
-        if fmt == "c" and args.opset is not None:
-            raise ValueError("--opset applies to the ONNX format only, not to --format c")
-        if fmt == "c":
+        if fmt != "onnx" and args.opset is not None:
+            raise ValueError(f"--opset applies to the ONNX format only, not to --format {fmt}")
+        if fmt == "crazyflie":
+            path = export_crazyflie(args.policy, args.output)
+        elif fmt == "c":
             path = export_c(args.policy, args.output)
         else:
             path = export_onnx(args.policy, args.output, opset=args.opset)
     except (FileNotFoundError, ValueError, ImportError, OSError) as err:
         return _fail(err)
-    if fmt == "c":
+    if fmt != "onnx":
         spec = read_policy(args.policy).spec
         settings = {
             "action_map": spec.action_map,

@@ -9,6 +9,7 @@ from bfc.agent import PolicySpec, load_policy, save_policy
 
 ROOT = Path(__file__).resolve().parents[1]
 PRETRAINED = ROOT / "pretrained" / "policy.pt"
+CRAZYFLIE = ROOT / "pretrained" / "crazyflie.pt"  # an "x" airframe, its own hover speed and limits
 # On motor speed / hover speed (the speed map's action units): float32 round-off is ~1e-6.
 TOLERANCE = 1e-5
 

@@ -15,6 +15,7 @@ from bfc.agent import POLICY_FORMAT, PolicySpec, load_policy, save_policy  # noq
 from bfc.envs.params import AirframeParams  # noqa: E402
 from bfc.export import OnnxController, export_onnx, main, read_metadata  # noqa: E402
 from tests.export_helpers import (  # noqa: E402
+    CRAZYFLIE,
     PRETRAINED,
     ROOT,
     SCALED,
@@ -35,13 +36,14 @@ def models(tmp_path_factory):
     scaled = tiny_policy(d / "scaled.pt", scales=SCALED)
     return {
         "pretrained": (PRETRAINED, export_onnx(PRETRAINED, d / "pretrained.onnx")),
+        "crazyflie": (CRAZYFLIE, export_onnx(CRAZYFLIE, d / "crazyflie.onnx")),
         "tiny": (tiny, export_onnx(tiny, d / "tiny.onnx")),
         "normalized": (normalized, export_onnx(normalized, d / "normalized.onnx")),
         "scaled": (scaled, export_onnx(scaled, d / "scaled.onnx")),
     }
 
 
-@pytest.mark.parametrize("name", ["pretrained", "tiny", "normalized", "scaled"])
+@pytest.mark.parametrize("name", ["pretrained", "crazyflie", "tiny", "normalized", "scaled"])
 def test_onnx_matches_the_torch_policy(models, name):
     policy_path, onnx_path = models[name]
     spec, _ = load_policy(policy_path)

@@ -15,6 +15,7 @@ from bfc.agent import PolicySpec, load_policy, save_policy
 from bfc.export import CController, export_c, main
 from tests import cortex_m4
 from tests.export_helpers import (
+    CRAZYFLIE,
     PRETRAINED,
     ROOT,
     SCALED,
@@ -103,6 +104,7 @@ def headers(tmp_path_factory):
     scaled = tiny_policy(d / "scaled.pt", scales=SCALED)
     return {
         "pretrained": (PRETRAINED, export_c(PRETRAINED, d / "pretrained" / "policy.h")),
+        "crazyflie": (CRAZYFLIE, export_c(CRAZYFLIE, d / "crazyflie" / "policy.h")),
         "tiny": (tiny, export_c(tiny, d / "tiny" / "policy.h")),
         "scaled": (scaled, export_c(scaled, d / "scaled" / "policy.h")),
     }
@@ -132,7 +134,7 @@ TARGETS = [pytest.param("host", marks=needs_cc), pytest.param("cortex-m4", marks
 
 
 @pytest.mark.parametrize("target", TARGETS)
-@pytest.mark.parametrize("name", ["pretrained", "tiny", "scaled"])
+@pytest.mark.parametrize("name", ["pretrained", "crazyflie", "tiny", "scaled"])
 def test_compiled_header_matches_the_torch_policy(headers, name, target):
     """On this machine and on the Crazyflie's instruction set (an emulated Cortex-M4F, whose libm
     and float code differ from the host's in the last bits: it is held to the same bound against

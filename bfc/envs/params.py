@@ -143,8 +143,9 @@ class AirframeParams:
 
     def motor_order(self) -> str:
         """Where each motor of a motor-speed vector sits and how it spins, for docs and exports."""
-        spins = ("CW" if s > 0 else "CCW" for s in self.rotor_spins)
-        return ", ".join(f"{i} {place} {spin}" for i, (place, spin) in enumerate(zip(_PLACES[self.layout], spins)))
+        spins = ["CW" if s > 0 else "CCW" for s in self.rotor_spins]
+        places = _PLACES[self.layout]
+        return ", ".join(f"{i} {place} {spin}" for i, (place, spin) in enumerate(zip(places, spins, strict=True)))
 
     def torque_rows(self) -> tuple[tuple[float, float, float], ...]:
         """Per rotor, the body torque (x, y, z) one newton of its thrust makes: r x F = (y, -x, 0)

@@ -56,7 +56,8 @@ class ProtocolEvaluator:
         from bfc.evaluation.video import clips_from_flights, pick_starts, tensorboard_video
 
         chosen = pick_starts(self.starts, 1, "tilted")
-        clip = clips_from_flights(self.flights, self.starts, chosen, self.threshold, label=title)[0]
+        airframe = self.env.base_env.airframe
+        clip = clips_from_flights(self.flights, self.starts, chosen, self.threshold, label=title, airframe=airframe)[0]
         return tensorboard_video("eval/video", clip)
 
     def close(self) -> None:

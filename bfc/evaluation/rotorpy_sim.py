@@ -46,7 +46,7 @@ from bfc.envs.rotations import euler_to_quat, quat_to_euler
 from bfc.evaluation.flights import one_torch_thread
 from bfc.evaluation.flying import PROTOCOL_HZ, airframe_of, is_module, is_onnx_path, onnx_controller
 from bfc.evaluation.protocol import TEST_SEED
-from bfc.evaluation.suites import CONDITIONS, horizontal_wind, robust_results
+from bfc.evaluation.suites import CONDITIONS, robust_results
 
 INSTALL_HINT = 'sim=rotorpy needs RotorPy: pip install -e ".[rotorpy]"'
 # RotorPy's own vehicles (an "X": r1 front-left, r2 front-right, r3 back-right, r4 back-left), by
@@ -437,18 +437,10 @@ def fly_condition_rotorpy(
     controller flies its airframe: a policy's own, else `nominal` (the Hummingbird when None)."""
     if name not in CONDITIONS:
         raise ValueError(f"unknown condition {name!r}; available: {', '.join(CONDITIONS)}")
-    c = CONDITIONS[name]
     body = airframe_of(controller, nominal)
-    starts = c.starts_for(num_starts, seed, body)
-    wind = horizontal_wind(num_starts, c.wind(body), seed) if c.wind_newtons else None
+    starts, wind, flown = CONDITIONS[name].world(body, num_starts, seed)
     return fly_rotorpy(
-        controller,
-        starts,
-        seconds=seconds,
-        airframe=airframe,
-        flown=c.flown_airframe(body),
-        wind_drag=wind,
-        nominal=body,
+        controller, starts, seconds=seconds, airframe=airframe, flown=flown, wind_drag=wind, nominal=body
     )
 
 

@@ -143,6 +143,12 @@ class Condition:
     def starts_for(self, n: int, seed: int, airframe: AirframeParams | None = None) -> torch.Tensor:
         return start_set(self.starts, n, seed, airframe)
 
+    def world(self, airframe: AirframeParams, n: int, seed: int):
+        """What the row flies on `airframe`: (its n starts, the wind per start (n, 3) N or None,
+        the flown airframe's overrides or None)."""
+        wind = horizontal_wind(n, self.wind(airframe), seed) if self.wind_newtons else None
+        return self.starts_for(n, seed, airframe), wind, self.flown_airframe(airframe)
+
     def flown_airframe(self, nominal: AirframeParams | None = None) -> dict | None:
         """The AirframeParams overrides of the flown body (None: nominal)."""
         if not self.airframe:
@@ -219,8 +225,7 @@ def fly_condition(
 
     c = condition(name)
     nominal = airframe_of(controller, airframe)
-    starts = c.starts_for(num_starts, seed, nominal)
-    wind = horizontal_wind(num_starts, c.wind(nominal), seed) if c.wind_newtons else None
+    starts, wind, flown = c.world(nominal, num_starts, seed)
     hardware = {
         "observation_delay": c.observation_delay,
         "action_delay": c.action_delay,
@@ -233,7 +238,7 @@ def fly_condition(
         starts,
         seconds=seconds,
         seed=seed,
-        airframe=c.flown_airframe(nominal),
+        airframe=flown,
         external_force=wind,
         nominal=dataclasses.asdict(nominal),
         **hardware,

@@ -97,10 +97,14 @@ class Clip:
     goal: np.ndarray  # (T + 1, 3)
     alive: np.ndarray  # (T + 1,) bool
     threshold: float  # the success box's half size, m
+    airframe: AirframeParams | None = None  # the drone drawn (the Hummingbird when None)
 
 
-def clips_from_flights(flights, starts: torch.Tensor, indices, threshold: float, label: str = "") -> list[Clip]:
-    """The chosen flights of a `fly` result (n, T) as clips; `starts` (n, 12) are their releases."""
+def clips_from_flights(
+    flights, starts: torch.Tensor, indices, threshold: float, label: str = "", airframe: AirframeParams | None = None
+) -> list[Clip]:
+    """The chosen flights of a `fly` result (n, T) as clips; `starts` (n, 12) are their releases;
+    `airframe` the drone they flew (drawn to its size)."""
     dt = flight_dt(flights)
     tilt = start_tilt_degrees(starts)
     out = []
@@ -123,6 +127,7 @@ def clips_from_flights(flights, starts: torch.Tensor, indices, threshold: float,
                 goal=column(keys.GOAL, goal[0]).numpy(),
                 alive=column("alive", True).bool().reshape(-1).numpy(),
                 threshold=float(threshold),
+                airframe=airframe,
             )
         )
     return out
@@ -336,7 +341,7 @@ def frames(clips, fps: float, width: int, height: int, camera: str = "chase", se
     Raises RendererUnavailable (before the first frame) when no OpenGL context can be made."""
     import mujoco
 
-    model = render_model(width, height)
+    model = render_model(width, height, clips[0].airframe if clips else None)
     data = mujoco.MjData(model)
     renderer = _open_renderer(model, width, height)
     font = _font(max(9, height // 20))
