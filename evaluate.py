@@ -228,7 +228,7 @@ def main(cfg) -> None:
         from bfc.evaluation.video import clips_from_flights, pick_starts
 
         chosen = pick_starts(starts, cfg.video_starts, cfg.video_pick)
-        film(cfg, out, {"": clips_from_flights(flights, starts, chosen, e.threshold)})
+        film(cfg, out, {"": clips_from_flights(flights, starts, chosen, e.threshold, airframe=nominal)})
 
 
 def run_suite(cfg, out: Path) -> None:
@@ -254,7 +254,8 @@ def robust_keeper(
         if flown != label:
             return
         starts = condition(name).starts_for(num_starts, seed, airframe)
-        kept[name] = clips_from_flights(flights, starts, pick_starts(starts, count, pick), threshold, label=name)
+        chosen = pick_starts(starts, count, pick)
+        kept[name] = clips_from_flights(flights, starts, chosen, threshold, label=name, airframe=airframe)
 
     return keep
 
