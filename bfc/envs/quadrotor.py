@@ -221,7 +221,9 @@ class QuadrotorEnv(EnvBase):
         self._apply_airframe_scale(np.ones(n, dtype=bool))
         # the rotor layout as wrench rows: torque x = sum y_i T_i, torque y = -sum x_i T_i,
         # torque z = moment_constant sum spin_i T_i (AirframeParams.torque_rows)
-        self._torque_rows = np.array(self.airframe.torque_rows())  # (4, 3): thrusts (..., 4) @ rows -> torques
+        # (4, 3): thrusts (..., 4) @ rows -> torques; built (3, 4) and transposed, a column-major view
+        # as it always was: the product's summation order, and so its last bits, follow the layout
+        self._torque_rows = np.array(list(zip(*self.airframe.torque_rows(), strict=True))).T
         self._hull = self.airframe.hull_half_size
         self._cos_ground_tilt = math.cos(math.radians(self.termination.ground_tilt_deg))
         self._generator = torch.Generator()

@@ -27,3 +27,24 @@ def test_one_million_frames_learn_to_stay_aloft_and_approach_the_goal(tmp_path):
     assert untrained["eval/crash_rate"] > 0.8 and untrained["eval/success_rate"] < 0.1, untrained
     assert trained["eval/crash_rate"] < 0.3, trained
     assert trained["eval/success_rate"] >= 0.5 and trained["eval/hover_error"] < 0.05, trained
+
+
+def test_the_crazyflie_learns_with_its_recipe_in_a_million_frames(tmp_path):
+    # env.airframe=crazyflie: the default's recipe with the Crazyflie's changes (docs/airframes.md)
+    cfg = compose_cfg(
+        [
+            "env/airframe=crazyflie",
+            "collector.total_frames=1000000",
+            "eval.interval_frames=500000",
+            "eval.early_frames=0",
+            "eval.at_start=true",
+            "eval.num_starts=25",
+            "logger.progress=false",
+            "seed=0",
+        ]
+    )
+    assert cfg.env.airframe.name == "crazyflie"
+    summary = train(cfg, tmp_path)
+    untrained, trained = summary["history"][0], summary["history"][-1]
+    assert untrained["eval/success_rate"] < 0.1, untrained
+    assert trained["eval/success_rate"] >= 0.5 and trained["eval/hover_error"] < 0.05, trained
