@@ -728,9 +728,8 @@ def jd_decay_frames(cfg) -> int:
 def validate(cfg) -> None:
     """Training-level checks; env and transform values are checked by their constructors."""
     check_keys(cfg)
-    airframe = AirframeParams(
-        **OmegaConf.to_container(cfg.env.airframe)
-    )  # a bad value: one line, before anything starts
+    # a bad airframe value: one line, before anything starts
+    airframe = AirframeParams(**OmegaConf.to_container(cfg.env.airframe))
     wind = cfg.env.randomize.external_force
     check(
         wind <= WIND_LIMIT * airframe.weight,

@@ -79,17 +79,21 @@ def build_library(header_path, out_dir, cc: str | None = None) -> Path:
     header_path, out_dir = Path(header_path), Path(out_dir)
     if not header_path.is_file():
         raise FileNotFoundError(f"no C header at {header_path}: write one with python -m bfc.export policy.pt policy.h")
-    compiler = find_compiler(cc)
     out_dir.mkdir(parents=True, exist_ok=True)
     shutil.copyfile(header_path, out_dir / _HEADER_COPY)
     source = out_dir / "bfc_policy_lib.c"
     source.write_text(_WRAPPER.format(header=_HEADER_COPY, p=PREFIX, P=PREFIX.upper()))
-    library = out_dir / "libbfc_policy.so"
-    command = [compiler, *CFLAGS, "-shared", "-fPIC", str(source), "-o", str(library), "-lm"]
+    return compile_library(source, out_dir / "libbfc_policy.so", str(header_path), cc=cc)
+
+
+def compile_library(source: Path, library: Path, what: str, cc: str | None = None, flags=()) -> Path:
+    """`source` compiled into the shared library `library` (CFLAGS, `flags`, -lm); RuntimeError
+    naming `what` with the compiler's first error line when it fails."""
+    command = [find_compiler(cc), *CFLAGS, *flags, "-shared", "-fPIC", str(source), "-o", str(library), "-lm"]
     result = subprocess.run(command, capture_output=True, text=True)
     if result.returncode != 0:
         first = next((line for line in result.stderr.splitlines() if "error" in line), result.stderr.strip()[:300])
-        raise RuntimeError(f"compiling {header_path} failed: {first}")
+        raise RuntimeError(f"compiling {what} failed: {first}")
     return library
 
 

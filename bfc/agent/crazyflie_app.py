@@ -11,8 +11,11 @@ copied from the firmware (GPL-3): the glue uses the documented fields of its str
 
 from __future__ import annotations
 
+import ctypes
 import math
 import shutil
+import tempfile
+import weakref
 from pathlib import Path
 
 import numpy as np
@@ -21,6 +24,7 @@ from tensordict.nn import TensorDictModuleBase
 
 from bfc import keys
 from bfc.agent.atomic import atomic_write
+from bfc.agent.c_controller import compile_library
 from bfc.agent.c_export import c_float, export_c
 from bfc.agent.fed_back import FedBackController
 from bfc.agent.policy_file import load_policy
@@ -215,6 +219,13 @@ Select the controller with the parameter `stabilizer.controller` = 5 (out of tre
   or the high-level commander); with no such setpoint it commands zero force and resets the policy,
   so each flight starts as the policy was trained (hover as the previous command, no integral).
 
+## Not flight-ready yet
+
+This version runs the policy inside the stabilizer's task: its call needs about 1.4 KB of stack
+(the stabilizer task has 1.8 KB) and about 0.8 ms at 168 MHz, every tenth tick of a 1 ms loop.
+Check both on your build (the firmware's stack and loop-rate checks) before anything else; bfc's
+docs/export.md says what the next version changes.
+
 ## Before a first flight
 
 1. Props off: give a setpoint 0.5 m above the drone and check each motor spins up, and that tilting
@@ -319,13 +330,6 @@ class CrazyflieAppController(TensorDictModuleBase):
     the trained airframe's full thrust flies the policy unclipped)."""
 
     def __init__(self, app_dir, thrust_max: float | None = None, cc: str | None = None):
-        import ctypes
-        import subprocess
-        import tempfile
-        import weakref
-
-        from bfc.agent.c_controller import CFLAGS, find_compiler
-
         super().__init__()
         self.in_keys, self.out_keys = [keys.ODOMETRY, keys.GOAL], [keys.ACTION]
         build = Path(tempfile.mkdtemp(prefix="bfc-crazyflie-"))
@@ -333,12 +337,7 @@ class CrazyflieAppController(TensorDictModuleBase):
         copy_core(app_dir, build)
         (build / "sitl.c").write_text(_SITL)
         defines = [] if thrust_max is None else [f"-DBFC_CF_THRUST_MAX={float(thrust_max)!r}f"]
-        library = build / "libbfc_crazyflie.so"
-        command = [find_compiler(cc), *CFLAGS, *defines, "-shared", "-fPIC", str(build / "sitl.c"), "-o", str(library)]
-        result = subprocess.run([*command, "-lm"], capture_output=True, text=True)
-        if result.returncode != 0:
-            first = next((ln for ln in result.stderr.splitlines() if "error" in ln), result.stderr.strip()[:300])
-            raise RuntimeError(f"compiling the Crazyflie app's core failed: {first}")
+        library = compile_library(build / "sitl.c", build / "libbfc_crazyflie.so", "the app's core", cc, defines)
         lib = ctypes.CDLL(str(library))
         lib.bfc_sitl_state_size.restype = ctypes.c_size_t
         lib.bfc_sitl_reset.argtypes = [ctypes.c_void_p, ctypes.c_int, ctypes.c_void_p]
@@ -383,6 +382,4 @@ class CrazyflieAppController(TensorDictModuleBase):
 
     @staticmethod
     def _ptr(array):
-        import ctypes
-
         return array.ctypes.data_as(ctypes.c_void_p)

@@ -16,7 +16,7 @@ from dataclasses import dataclass
 import torch
 
 from bfc.controllers.base import Controller, Odometry
-from bfc.envs.params import AirframeParams
+from bfc.envs.params import HUMMINGBIRD, AirframeParams
 
 
 @dataclass
@@ -45,10 +45,6 @@ def _vee(m: torch.Tensor) -> torch.Tensor:
     return torch.stack((m[:, 2, 1], m[:, 0, 2], m[:, 1, 0]), -1)
 
 
-# The airframe LeeGains are given for (RotorS's Hummingbird): another airframe gets them scaled
-_REFERENCE = AirframeParams()
-
-
 class LeeController(Controller):
     """Lee's controller for `airframe`. Its gains (LeeGains) are the Hummingbird's; on another
     airframe the position, velocity and integral gains scale with the mass and the attitude and
@@ -59,8 +55,8 @@ class LeeController(Controller):
         super().__init__(airframe, dt)
         self.gains = gains or LeeGains()
         f64 = torch.float64
-        mass = airframe.total_mass / _REFERENCE.total_mass
-        inertia = self.inertia / torch.tensor(_REFERENCE.rigid_inertia, dtype=f64)
+        mass = airframe.total_mass / HUMMINGBIRD.total_mass
+        inertia = self.inertia / torch.tensor(HUMMINGBIRD.rigid_inertia, dtype=f64)
         self.kp = torch.tensor(self.gains.position, dtype=f64) * mass
         self.kv = torch.tensor(self.gains.velocity, dtype=f64) * mass
         self.kr = torch.tensor(self.gains.attitude, dtype=f64) * inertia

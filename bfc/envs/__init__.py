@@ -1,4 +1,4 @@
-"""The MuJoCo Hummingbird as a batched TorchRL env.
+"""The MuJoCo quadrotor (an airframe as data, the Hummingbird by default) as a batched TorchRL env.
 
 The parameter dataclasses import nothing heavy; `QuadrotorEnv` (torch, TorchRL, MuJoCo) is
 imported on first use, so that a config can be checked before those load (bfc.config).

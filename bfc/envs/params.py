@@ -156,6 +156,10 @@ class AirframeParams:
         )
 
 
+# The default airframe: what the evaluation rows' newtons and Lee's published gains are given for
+HUMMINGBIRD = AirframeParams()
+
+
 REWARD_KINDS = ("bfc", "paper")
 
 

@@ -1,4 +1,4 @@
-"""N AscTec Hummingbirds in MuJoCo as one batched TorchRL env.
+"""N quadrotors (AscTec Hummingbirds by default, any `AirframeParams`) in MuJoCo as one batched TorchRL env.
 
 Why it is built this way:
 - MuJoCo integrates rigid-body and contact dynamics; everything MuJoCo has no element for (the
@@ -104,7 +104,7 @@ def airframe_spec(airframe: AirframeParams, physics_dt: float = REFERENCE_PHYSIC
 
 
 class QuadrotorEnv(EnvBase):
-    """`num_envs` Hummingbirds flown by motor speed commands (rad/s).
+    """`num_envs` quadrotors of one airframe flown by motor speed commands (rad/s).
 
     Keys: `"action"` (N, 4) in; `"odometry"` (N, 18), `"goal"` (N, 3) and ground truth under
     `"state"` out (see bfc.keys). `reset()` draws starts from the task distribution D; a reset

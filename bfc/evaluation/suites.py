@@ -31,6 +31,7 @@ from dataclasses import dataclass, field
 import torch
 
 from bfc.envs import AirframeParams
+from bfc.envs.params import HUMMINGBIRD
 from bfc.envs.rotations import quat_to_euler
 from bfc.evaluation.judge import judge
 from bfc.evaluation.metrics import hover_error
@@ -119,9 +120,6 @@ def horizontal_wind(n: int, newtons: float = 1.0, seed: int = TEST_SEED) -> torc
     """(n, 3) a horizontal force of `newtons` in a random direction per start."""
     angle = _uniform(_generator("wind", seed), n, -math.pi, math.pi)
     return torch.stack((angle.cos(), angle.sin(), torch.zeros(n, dtype=torch.float64)), -1) * newtons
-
-
-HUMMINGBIRD = AirframeParams()  # the airframe the rows' winds are given in newtons for
 
 
 @dataclass
