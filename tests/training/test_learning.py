@@ -4,21 +4,20 @@ from bfc.training import train
 
 from .helpers import compose_cfg
 
+# a million frames, the untrained policy flown first, two looks at 25 validation starts
+MILLION = [
+    "collector.total_frames=1000000",
+    "eval.interval_frames=500000",
+    "eval.early_frames=0",
+    "eval.at_start=true",
+    "eval.num_starts=25",
+    "logger.progress=false",
+]
+
 
 def test_one_million_frames_learn_to_stay_aloft_and_approach_the_goal(tmp_path):
     # The paper's BFC (extras=none), whose easier task gives a clear signal within 1M frames.
-    cfg = compose_cfg(
-        [
-            "extras=none",
-            "collector.total_frames=1000000",
-            "eval.interval_frames=500000",
-            "eval.early_frames=0",
-            "eval.at_start=true",
-            "eval.num_starts=25",
-            "logger.progress=false",
-            "seed=1",
-        ]
-    )
+    cfg = compose_cfg(["extras=none", *MILLION, "seed=1"])
     summary = train(cfg, tmp_path)
     untrained, trained = summary["history"][0], summary["history"][-1]
     assert untrained["frames"] == 0 and trained["frames"] >= 1_000_000
@@ -31,18 +30,7 @@ def test_one_million_frames_learn_to_stay_aloft_and_approach_the_goal(tmp_path):
 
 def test_the_crazyflie_learns_with_its_recipe_in_a_million_frames(tmp_path):
     # env.airframe=crazyflie: the default's recipe with the Crazyflie's changes (docs/airframes.md)
-    cfg = compose_cfg(
-        [
-            "env/airframe=crazyflie",
-            "collector.total_frames=1000000",
-            "eval.interval_frames=500000",
-            "eval.early_frames=0",
-            "eval.at_start=true",
-            "eval.num_starts=25",
-            "logger.progress=false",
-            "seed=0",
-        ]
-    )
+    cfg = compose_cfg(["env/airframe=crazyflie", *MILLION, "seed=0"])
     assert cfg.env.airframe.name == "crazyflie"
     summary = train(cfg, tmp_path)
     untrained, trained = summary["history"][0], summary["history"][-1]
