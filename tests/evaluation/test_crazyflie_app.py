@@ -60,8 +60,23 @@ def test_its_core_flies_in_the_loop_as_the_torch_policy(app, starts):
 # sensorData_t, setpoint_t, control_t; the app and FreeRTOS calls the glue makes)
 FIRMWARE_STUBS = {
     "app.h": "",
-    "FreeRTOS.h": "#include <stdint.h>\n#define M2T(ms) (ms)\n",
-    "task.h": "static inline void vTaskDelay(unsigned ticks) { (void)ticks; }\n",
+    "FreeRTOS.h": """#include <stdint.h>
+#include <stddef.h>
+#define M2T(ms) (ms)
+#define pdTRUE 1
+#define portMAX_DELAY 0xffffffffu
+""",
+    "task.h": """extern int stub_critical;
+#define taskENTER_CRITICAL() (++stub_critical)
+#define taskEXIT_CRITICAL() (--stub_critical)
+""",
+    "semphr.h": """typedef struct { int given; } StaticSemaphore_t;
+typedef StaticSemaphore_t *SemaphoreHandle_t;
+static inline SemaphoreHandle_t xSemaphoreCreateBinaryStatic(StaticSemaphore_t *b) { b->given = 0; return b; }
+static inline int xSemaphoreGive(SemaphoreHandle_t s) { s->given = 1; return pdTRUE; }
+static inline int xSemaphoreTake(SemaphoreHandle_t s, uint32_t wait)
+{ int g = s->given; (void)wait; s->given = 0; return g; }
+""",
     "controller.h": '#include "stabilizer_types.h"\n',
     "stabilizer_types.h": """#ifndef STUB_TYPES
 #define STUB_TYPES
@@ -81,10 +96,16 @@ typedef struct { control_mode_t controlMode; float normalizedForces[4]; } contro
 """,
 }
 
+# The stabilizer's ticks and the app task's steps, one after the other: before a setpoint, the
+# first ticks of one (the forces the app task has not computed yet), after its first step
 GLUE_RUN = r"""#include <stdio.h>
 #include "stabilizer_types.h"
+int stub_critical = 0;
 void controllerOutOfTreeInit(void);
 void controllerOutOfTree(control_t *, const setpoint_t *, const sensorData_t *, const state_t *, const uint32_t);
+void bfcAppStep(void);
+static void put(const control_t *c) { printf("%d %g %g %g %g\n", (int)c->controlMode, c->normalizedForces[0],
+    c->normalizedForces[1], c->normalizedForces[2], c->normalizedForces[3]); }
 int main(void)
 {
     state_t state = {{0.0f, 0.0f, 0.0f}, {0.3f, -0.2f, 1.2f}, {0.0f, 0.0f, 0.0f}};
@@ -95,18 +116,25 @@ int main(void)
     uint32_t tick;
     controllerOutOfTreeInit();
     controllerOutOfTree(&control, &none, &sensors, &state, 0);
-    printf("%d %g %g %g %g\n", (int)control.controlMode, control.normalizedForces[0], control.normalizedForces[1],
-        control.normalizedForces[2], control.normalizedForces[3]);
-    for (tick = 0; tick < 10; ++tick) controllerOutOfTree(&control, &goal, &sensors, &state, tick);
-    printf("%g %g %g %g\n", control.normalizedForces[0], control.normalizedForces[1], control.normalizedForces[2],
-        control.normalizedForces[3]);
+    put(&control);
+    controllerOutOfTree(&control, &goal, &sensors, &state, 0);
+    put(&control);
+    bfcAppStep();
+    for (tick = 1; tick < 10; ++tick) controllerOutOfTree(&control, &goal, &sensors, &state, tick);
+    put(&control);
+    controllerOutOfTree(&control, &none, &sensors, &state, 10);
+    put(&control);
+    printf("%d\n", stub_critical);
     return 0;
 }
 """
 
 
 @needs_cc
-def test_the_glue_compiles_against_the_firmwares_structures_and_commands_nothing_without_a_setpoint(app, tmp_path):
+def test_the_glue_hands_the_estimate_to_the_app_task_and_commands_nothing_without_a_setpoint(app, tmp_path):
+    """The glue against structures and FreeRTOS calls shaped like the firmware's (stubs defined
+    here): zero force and controlModeForce without a setpoint, nothing before the app task's first
+    step, its forces after it, zero again once the setpoint goes; critical sections balanced."""
     stubs = tmp_path / "stubs"
     stubs.mkdir()
     for name, text in FIRMWARE_STUBS.items():
@@ -125,11 +153,12 @@ def test_the_glue_compiles_against_the_firmwares_structures_and_commands_nothing
     ]
     done = subprocess.run([*cmd, "-o", str(exe), "-lm"], capture_output=True, text=True)
     assert done.returncode == 0, done.stderr[-3000:]
-    first, second = subprocess.run([str(exe)], capture_output=True, text=True, check=True).stdout.splitlines()
-    mode, *off = first.split()
-    assert mode == "2" and [float(v) for v in off] == [0.0] * 4  # controlModeForce, motors off
-    forces = [float(v) for v in second.split()]
-    assert all(0.0 < f <= 1.0 for f in forces)  # 0.3 m below the goal: it climbs
+    lines = subprocess.run([str(exe)], capture_output=True, text=True, check=True).stdout.splitlines()
+    rows = [[float(v) for v in line.split()] for line in lines[:4]]
+    assert all(row[0] == 2 for row in rows)  # controlModeForce
+    assert rows[0][1:] == [0.0] * 4 and rows[1][1:] == [0.0] * 4  # no setpoint; no step yet
+    assert all(0.0 < f <= 1.0 for f in rows[2][1:])  # 0.3 m below the goal: it climbs
+    assert rows[3][1:] == [0.0] * 4 and lines[4] == "0"
 
 
 def _rows(n: int = 2000) -> np.ndarray:
