@@ -259,7 +259,9 @@ make CRAZYFLIE_BASE=$PWD/crazyflie-firmware -C <this folder>     # or bench/craz
 make CRAZYFLIE_BASE=$PWD/crazyflie-firmware -C <this folder> cload   # over the radio (cfclient's bootloader)
 ```
 
-Select the controller with the parameter `stabilizer.controller` = 5 (out of tree), e.g. in cfclient.
+Select the controller with the parameter `stabilizer.controller` = 6, e.g. in cfclient
+(ControllerTypeOot in crazyflie-firmware 2a18fc29: after auto, PID, Mellinger, INDI, Brescianini
+and Lee; check your version's `controller.h`).
 
 ## What it does
 
