@@ -28,7 +28,7 @@ import numpy as np
 import torch
 
 from bfc import keys
-from bfc.envs.params import AirframeParams
+from bfc.envs.params import HUMMINGBIRD, AirframeParams
 from bfc.envs.rotations import euler_to_quat
 from bfc.evaluation.judge import flight_dt
 
@@ -145,7 +145,7 @@ def render_model(width: int, height: int, airframe: AirframeParams | None = None
 
     from bfc.envs.quadrotor import BODY, airframe_spec
 
-    air = airframe or AirframeParams()
+    air = airframe or HUMMINGBIRD
     spec = airframe_spec(air)
     spec.add_texture(
         name="grid",
@@ -282,7 +282,10 @@ class _Camera:
 
     @staticmethod
     def _distance(clip: Clip, k: int) -> float:
-        return 1.6 + 0.9 * float(np.linalg.norm(clip.position[k] - clip.goal[k]))
+        """1.6 m from a Hummingbird at the goal (closer to a smaller airframe), plus 0.9 m per
+        metre from the goal."""
+        size = (clip.airframe or HUMMINGBIRD).arm_length / HUMMINGBIRD.arm_length
+        return 1.6 * min(max(size, 0.3), 2.0) + 0.9 * float(np.linalg.norm(clip.position[k] - clip.goal[k]))
 
     def at(self, clip: Clip, k: int):
         if self.kind == "chase":
