@@ -26,7 +26,7 @@ from bfc import keys
 from bfc.agent.atomic import atomic_write
 from bfc.agent.c_controller import compile_library
 from bfc.agent.c_export import c_float, export_c
-from bfc.agent.fed_back import FedBackController
+from bfc.agent.fed_back import restart_mask
 from bfc.agent.policy_file import load_policy
 
 # The stock firmware's THRUST_MAX (platform_defaults.h): the thrust per motor, N, that a normalised
@@ -416,7 +416,7 @@ class CrazyflieAppController(TensorDictModuleBase):
         if self._states is None or len(self._states) != n * self._size:
             self._states = np.zeros(n * self._size, dtype=np.uint8)
             self._lib.bfc_sitl_reset(self._ptr(self._states), n, None)
-        mask = FedBackController._reset_mask(td)
+        mask = restart_mask(td)
         if mask is not None and mask.any():
             self._lib.bfc_sitl_reset(self._ptr(self._states), n, self._ptr(mask.astype(np.uint8)))
         deg = 180.0 / math.pi

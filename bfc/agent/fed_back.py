@@ -17,6 +17,16 @@ from tensordict.nn import TensorDictModuleBase
 from bfc import keys
 
 
+def restart_mask(td: TensorDictBase) -> np.ndarray | None:
+    """Which envs restart their flight at this call (TorchRL's `"is_init"`, or `"step_count" == 0`);
+    None when the input says neither. Every controller that keeps per-drone state reads it here."""
+    if "is_init" in td.keys():
+        return td.get("is_init").reshape(-1).cpu().numpy().astype(bool)
+    if "step_count" in td.keys():
+        return (td.get("step_count").reshape(-1) == 0).cpu().numpy()
+    return None
+
+
 class FedBackController(TensorDictModuleBase):
     """Reads `"odometry"` and `"goal"`, writes `"action"` (rad/s), and feeds its own last command
     (integral, history) back. The previous command and the history start at the hover speed (the
@@ -50,14 +60,6 @@ class FedBackController(TensorDictModuleBase):
     def begin_flight(self) -> None:
         self.reset()
 
-    @staticmethod
-    def _reset_mask(td: TensorDictBase) -> np.ndarray | None:
-        if "is_init" in td.keys():
-            return td.get("is_init").reshape(-1).cpu().numpy().astype(bool)
-        if "step_count" in td.keys():
-            return (td.get("step_count").reshape(-1) == 0).cpu().numpy()
-        return None
-
     def forward(self, td: TensorDictBase) -> TensorDictBase:
         odometry = td.get(keys.ODOMETRY)
         goal = td.get(keys.GOAL)
@@ -68,7 +70,7 @@ class FedBackController(TensorDictModuleBase):
             previous = np.full((n, 4), self.hover_speed, dtype=np.float32)
             integral = np.zeros((n, 3), dtype=np.float32)
             history = np.full((n, self.command_history, 4), self.hover_speed, dtype=np.float32)
-        mask = self._reset_mask(td)
+        mask = restart_mask(td)
         if mask is not None and mask.any():
             previous, integral, history = previous.copy(), integral.copy(), history.copy()
             previous[mask] = self.hover_speed
