@@ -64,6 +64,20 @@ class LeeController(Controller):
         self.ki = torch.tensor(self.gains.integral, dtype=f64) * mass
         self._integral = None
 
+    GAIN_GROUPS = ("position", "velocity", "attitude", "angular_rate")
+
+    def scale_gains(self, **factors) -> LeeController:
+        """Multiply the gain groups (GAIN_GROUPS) by factors: floats, or (n,) tensors giving each of
+        n envs its own (a tuning grid flies its candidates side by side). Returns self."""
+        unknown = set(factors) - set(self.GAIN_GROUPS)
+        if unknown:
+            raise ValueError(f"lee gain groups are {', '.join(self.GAIN_GROUPS)}, got {', '.join(sorted(unknown))}")
+        attr = {"position": "kp", "velocity": "kv", "attitude": "kr", "angular_rate": "kw"}
+        for group, factor in factors.items():
+            f = torch.as_tensor(factor, dtype=torch.float64)
+            setattr(self, attr[group], getattr(self, attr[group]) * (f.unsqueeze(-1) if f.ndim else f))
+        return self
+
     def reset(self) -> None:
         self._integral = None
 

@@ -173,6 +173,21 @@ class LinearMPC(Controller):
         self.max_thrust = 4 * airframe.motor_constant * airframe.max_rotor_speed**2 / self.mass  # m/s^2
         self.solves, self.fallbacks = 0, 0  # fallbacks: envs x solves flown by the LQR instead
         self._solver, self._n = None, 0
+        self._factors = {"attitude": 1.0, "angular_rate": 1.0}
+
+    # What a tuning grid may scale per env: the inner loop's attitude and rate gains (the QP's
+    # weights are one Hessian shared by every env, so candidates for them cannot fly side by side)
+    GAIN_GROUPS = ("attitude", "angular_rate")
+
+    def scale_gains(self, **factors) -> LinearMPC:
+        """Multiply the inner loop's gain groups (GAIN_GROUPS) by factors: floats, or (n,) tensors
+        giving each of n envs its own. Returns self."""
+        unknown = set(factors) - set(self.GAIN_GROUPS)
+        if unknown:
+            raise ValueError(f"mpc gain groups are {', '.join(self.GAIN_GROUPS)}, got {', '.join(sorted(unknown))}")
+        for group, factor in factors.items():
+            self._factors[group] = self._factors[group] * torch.as_tensor(factor, dtype=torch.float64)
+        return self
 
     def reset(self) -> None:
         self._solver, self._n = None, 0
@@ -263,11 +278,12 @@ class LinearMPC(Controller):
         err = held[:, 0:2] - odo.rpy[:, 0:2]
         self._integral = (self._integral + err * (self.dt / 0.01)).clamp(-p.att_integrator_max, p.att_integrator_max)
         integral = p.att_integrator_gain * self._integral
+        k_att, k_rate = self._factors["attitude"], self._factors["angular_rate"]
         alpha = torch.stack(
             (
-                p.att_roll_gain * err[:, 0] - p.att_p_gain * w[:, 0] + integral[:, 0],
-                p.att_pitch_gain * err[:, 1] - p.att_q_gain * w[:, 1] + integral[:, 1],
-                p.att_r_gain * (held[:, 2] - w[:, 2]),
+                k_att * p.att_roll_gain * err[:, 0] - k_rate * p.att_p_gain * w[:, 0] + integral[:, 0],
+                k_att * p.att_pitch_gain * err[:, 1] - k_rate * p.att_q_gain * w[:, 1] + integral[:, 1],
+                k_rate * p.att_r_gain * (held[:, 2] - w[:, 2]),
             ),
             -1,
         )

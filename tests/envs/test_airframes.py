@@ -165,6 +165,16 @@ def test_a_wind_too_strong_for_the_airframe_is_refused():
     validate(compose(["env.airframe=crazyflie"]))
 
 
+def test_randomised_airframes_that_cannot_lift_themselves_are_refused():
+    """The Crazyflie at the firmware's thrust (thrust-to-weight 1.53) with the default's mass and k_f
+    ranges would draw bodies of 0.94: refused, naming the ranges; its own narrower ones pass."""
+    cfg = compose(["env.airframe=crazyflie", "env.randomize.mass=[0.7,1.3]", "env.randomize.motor_constant=[0.8,1.2]"])
+    with pytest.raises(ValueError, match=r"env.randomize.mass must be ranges .* thrust-to-weight 0.94 at mass x1.3"):
+        validate(cfg)
+    validate(compose(["env.airframe=crazyflie"]))
+    validate(compose([]))
+
+
 def test_train_py_reports_a_bad_airframe_in_one_line(tmp_path):
     bad = _write(tmp_path / "bad.yaml", {"body_mass": 0.03})
     for arg, says in ((f"env.airframe={bad}", "missing airframe field(s)"), ("env.airframe.layout=y", "layout")):
