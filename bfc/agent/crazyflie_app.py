@@ -123,7 +123,7 @@ GLUE = r"""/* bfc_oot.c: the bfc policy as the Crazyflie firmware's out-of-tree 
  *
  * The stabilizer's task (1 kHz, a 1.8 KB stack) only hands the estimate over at the policy's rate
  * and applies the latest forces every tick; the policy runs in this app's own task (its stack and
- * priority in app-config), which the stabilizer wakes: about 0.8 ms of work per 10 ms there,
+ * priority in app-config), which the stabilizer wakes: about 0.8 ms of work per policy step there,
  * outside the stabilizer's tick. */
 #include <stdbool.h>
 #include <stdint.h>

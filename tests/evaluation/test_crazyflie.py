@@ -20,7 +20,7 @@ def test_its_file_holds_the_crazyflie_it_was_trained_on():
     spec, _ = load_policy(CRAZYFLIE)
     assert spec.nominal_airframe == CF  # every field, the layout and spins included
     assert spec.make_action_map().hover_speed == pytest.approx(CF.hover_speed)  # 1,788.6 rad/s, not 457.9
-    assert spec.control_hz == 100.0
+    assert spec.control_hz == 50.0  # the built-in Crazyflie's rate (conf/env/airframe/crazyflie.yaml)
 
 
 def test_it_flies_the_protocol_and_takes_off_from_its_own_floor():
