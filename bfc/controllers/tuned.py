@@ -1,8 +1,8 @@
 """The baselines' gains per built-in airframe: factors on top of each controller's own scaling to
 the airframe, chosen on the validation starts by `python bench/tune_baselines.py --airframe NAME`
-(a grid over the gain groups, scored on every row of suite=robust; docs/controllers.md has the grid,
-the scores and why). An airframe not listed (the Hummingbird, whose published RotorS and Kamel sets
-these are, or a user's own) flies the factors 1.
+(a grid over the gain groups, scored on the rows of suite=robust and suite=hardware, or as an entry
+says; docs/controllers.md has the grid, the scores and why). An airframe not listed (the
+Hummingbird, whose published RotorS and Kamel sets these are, or a user's own) flies the factors 1.
 
 `CONTROLLERS` (bfc.controllers) builds every baseline through `build`, so `controller=lee` on the
 Crazyflie flies its tuned gains wherever a controller is named: evaluate.py, `fly`, RotorPy.
@@ -17,8 +17,7 @@ from bfc.envs.params import AirframeParams
 
 TUNED: dict[str, dict[str, dict[str, float]]] = {
     # bench/tune_baselines.py --airframe crazyflie, 30 validation starts per row: the MPC scored on the
-    # 20 rows of both suites, Lee and lee_i on the 12 robust rows (--suites robust; their choices
-    # keep every latency row of the hardware suite)
+    # 20 rows of both suites, Lee and lee_i on the 12 robust rows (--suites robust)
     "crazyflie": {
         "lee": {"position": 0.5, "angular_rate": 2.0},
         "lee_i": {"velocity": 2.0, "angular_rate": 2.0},
