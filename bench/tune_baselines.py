@@ -59,10 +59,7 @@ def fly_grid(name: str, grid: list[dict], airframe, row: str, n: int, seconds: f
         airframe=flown,
         external_force=None if wind is None else wind.repeat(k, 1),
         nominal=dataclasses.asdict(airframe),
-        observation_delay=c.observation_delay,
-        action_delay=c.action_delay,
-        start_motors=c.start_motors,
-        noise=c.noise,
+        **c.hardware(),
     )
     return judge(flights).success.reshape(k, n), hover_errors(flights).reshape(k, n)
 

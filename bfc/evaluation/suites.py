@@ -147,6 +147,14 @@ class Condition:
         wind = horizontal_wind(n, self.wind(airframe), seed) if self.wind_newtons else None
         return self.starts_for(n, seed, airframe), wind, self.flown_airframe(airframe)
 
+    def hardware(self) -> dict:
+        """`fly`'s arguments for what the flight computer adds on this row (latency, noise, motors at release)."""
+        out = {"observation_delay": self.observation_delay, "action_delay": self.action_delay}
+        out["start_motors"] = self.start_motors
+        if self.noise is not None:
+            out["noise"] = self.noise
+        return out
+
     def flown_airframe(self, nominal: AirframeParams | None = None) -> dict | None:
         """The AirframeParams overrides of the flown body (None: nominal)."""
         if not self.airframe:
@@ -224,13 +232,6 @@ def fly_condition(
     c = condition(name)
     nominal = airframe_of(controller, airframe)
     starts, wind, flown = c.world(nominal, num_starts, seed)
-    hardware = {
-        "observation_delay": c.observation_delay,
-        "action_delay": c.action_delay,
-        "start_motors": c.start_motors,
-    }
-    if c.noise is not None:
-        hardware["noise"] = c.noise
     return fly(
         controller,
         starts,
@@ -239,7 +240,7 @@ def fly_condition(
         airframe=flown,
         external_force=wind,
         nominal=dataclasses.asdict(nominal),
-        **hardware,
+        **c.hardware(),
         **kw,
     )
 
