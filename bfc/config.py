@@ -30,6 +30,7 @@ from omegaconf import DictConfig, OmegaConf
 
 from bfc.checks import check
 from bfc.envs.params import GOAL, AirframeParams, RandomizeParams, RewardParams, StartParams, TerminationParams
+from bfc.keys import ACTIVATION_NAMES
 
 CONF_DIR = Path(__file__).resolve().parents[1] / "conf"  # the repository's Hydra configs
 
@@ -725,6 +726,17 @@ def jd_decay_frames(cfg) -> int:
     return int(cfg.collector.total_frames if d is None else d)
 
 
+def check_frames_per_batch(frames_per_batch: int, num_envs: int) -> None:
+    """A batch is whole steps of every env: `validate` and FusedCollector (built from a config or
+    not) both check it here."""
+    check(
+        frames_per_batch % num_envs == 0,
+        "collector.frames_per_batch",
+        f"a multiple of env.num_envs ({num_envs})",
+        frames_per_batch,
+    )
+
+
 def validate(cfg) -> None:
     """Training-level checks; env and transform values are checked by their constructors."""
     check_keys(cfg)
@@ -757,12 +769,7 @@ def validate(cfg) -> None:
     if c.stop_at_success is not None:
         check(0 <= c.stop_at_success <= 1, "collector.stop_at_success", "null or in [0, 1]", c.stop_at_success)
     check(c.stop_patience >= 1, "collector.stop_patience", ">= 1", c.stop_patience)
-    check(
-        c.frames_per_batch % cfg.env.num_envs == 0,
-        "collector.frames_per_batch",
-        f"a multiple of env.num_envs ({cfg.env.num_envs})",
-        c.frames_per_batch,
-    )
+    check_frames_per_batch(c.frames_per_batch, cfg.env.num_envs)
     check(c.kind in COLLECTORS, "collector.kind", " or ".join(COLLECTORS), c.kind)
     check(
         isinstance(c.workers, int) and c.workers >= 0 and (c.workers == 0 or num_envs % c.workers == 0),
@@ -823,9 +830,9 @@ def validate(cfg) -> None:
     check(d.critic_lr > 0, "algo.ddpg.critic_lr", "> 0", d.critic_lr)
     check(d.warmup_frames >= 0, "algo.ddpg.warmup_frames", ">= 0", d.warmup_frames)
     check(0 < d.gamma <= 1, "algo.ddpg.gamma", "in (0, 1]", d.gamma)
-    check(
-        cfg.model.activation in ("tanh", "relu", "elu"), "model.activation", "tanh, relu or elu", cfg.model.activation
-    )
+    names = ACTIVATION_NAMES
+    allowed = f"{', '.join(names[:-1])} or {names[-1]}"
+    check(cfg.model.activation in names, "model.activation", allowed, cfg.model.activation)
     check(cfg.model.init_std > 0, "model.init_std", "> 0", cfg.model.init_std)
     max_std = cfg.model.max_std
     check(

@@ -167,6 +167,14 @@ def _delays(latency, num_envs: int, hover_speed: float) -> list:
     return out
 
 
+def trained_rate(trained_hz: float, control_hz=None, what="this policy") -> float:
+    """The rate a policy flies at: the one it was trained at, whatever asks for another (a policy
+    file, its ONNX export; `fly`, `fly_rotorpy`, `make_flight_env`). `control_hz` None: that rate."""
+    if control_hz is not None and float(control_hz) != trained_hz:
+        raise ValueError(f"{what} was trained at {trained_hz:g} Hz and is flown at that rate only")
+    return trained_hz
+
+
 def make_flight_env(
     num_envs: int,
     *,
@@ -196,9 +204,7 @@ def make_flight_env(
     observation_delay / action_delay: seconds of latency (bfc.transforms.latency), in whole control
     steps (rounded down); start_motors: "rest" or "hover" at release.
     """
-    if policy is not None and control_hz is not None and float(control_hz) != policy.control_hz:
-        raise ValueError(f"this policy was trained at {policy.control_hz:g} Hz and is flown at that rate only")
-    rate = policy.control_hz if policy is not None else control_hz
+    rate = trained_rate(policy.control_hz, control_hz) if policy is not None else control_hz
     check(rate is not None, "control_hz", "given for a flight without a policy", rate)
     nominal = policy.airframe if policy is not None else dict(nominal or {})
     base = QuadrotorEnv(

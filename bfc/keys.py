@@ -3,6 +3,10 @@
 Keys are the contract between the packages: name them once, import them everywhere.
 """
 
+# the policy network's activations (model.activation): bfc.agent.actor maps each to its module and
+# bfc.config checks the name before torch loads, so the names live in this leaf
+ACTIVATION_NAMES = ("tanh", "relu", "elu")
+
 ACTION = "action"  # (N, 4) motor speed commands, rad/s, motor order of AirframeParams.motor_order()
 ODOMETRY = "odometry"  # (N, 18) what the sensors report (noise transforms act here)
 GOAL = "goal"  # (N, 3) desired position, world frame

@@ -22,7 +22,7 @@ from torchrl.modules import MLP, IndependentNormal, ProbabilisticActor, ValueOpe
 from bfc import keys
 from bfc.agent.normalization import Normalized, ObservationNorm
 
-ACTIVATIONS = {"tanh": nn.Tanh, "relu": nn.ReLU, "elu": nn.ELU}
+ACTIVATIONS = dict(zip(keys.ACTIVATION_NAMES, (nn.Tanh, nn.ReLU, nn.ELU), strict=True))
 _LOG_SQRT_2PI = math.log(math.sqrt(2 * math.pi))
 
 

@@ -20,6 +20,7 @@ from torchrl.envs import RewardSum, StepCounter
 
 from bfc import keys
 from bfc.agent import GaussianActor
+from bfc.config import check_frames_per_batch
 from bfc.envs.quadrotor import FLAT_GOAL, FLAT_MOTORS, FLAT_ODOMETRY, FLAT_QUATERNION, FLAT_REWARD
 from bfc.transforms import (
     ActionDelay,
@@ -73,8 +74,7 @@ class FusedCollector:
             )
         self.env, self.net, self.base = env, net, env.base_env
         self.n = self.base.num_envs
-        if frames_per_batch % self.n:
-            raise ValueError(f"collector.frames_per_batch must be a multiple of env.num_envs ({self.n})")
+        check_frames_per_batch(frames_per_batch, self.n)
         self.steps, self.total_frames, self.frames = frames_per_batch // self.n, int(total_frames), 0
         ts = list(env.transform)
 

@@ -202,6 +202,9 @@ class RewardParams:
         _check(self.alive > 0, "env.reward.alive", "> 0", self.alive)
 
 
+FLOOR_CONTACT = 0.005  # m: the hull's lowest point below this height touches the floor
+
+
 @dataclass
 class TerminationParams:
     """When a flight is a crash (terminated). Resting level on the floor is never one."""
@@ -215,6 +218,26 @@ class TerminationParams:
         for f in fields(self):
             v = getattr(self, f.name)
             _check(isinstance(v, (int, float)) and v > 0, f"env.termination.{f.name}", "> 0", v)
+
+    @property
+    def cos_ground_tilt(self) -> float:
+        return math.cos(math.radians(self.ground_tilt_deg))
+
+    def crashed(self, position, quaternion, cos_tilt, prev_vz, hull):
+        """The crash rule, written once for QuadrotorEnv (NumPy) and RotorPy (torch): builtin abs()
+        and operators work on both, with the same float ops in the same order. position (px, py, pz),
+        quaternion (w, x, y, z): per-env arrays; cos_tilt = 1 - 2 (x^2 + y^2); prev_vz: the vertical
+        velocity before the step; hull: the airframe's hull_half_size."""
+        px, py, pz = position
+        w, x, y, z = quaternion
+        hx, hy, hz = hull
+        # the collision box's lowest point: is the drone touching the floor?
+        lowest = pz - (hx * abs(2 * (x * z - w * y)) + hy * abs(2 * (y * z + w * x)) + hz * abs(cos_tilt))
+        touching = lowest < FLOOR_CONTACT
+        tipped = cos_tilt < self.cos_ground_tilt
+        hard = prev_vz < -self.crash_speed
+        outside = (abs(px) > self.box_xy) | (abs(py) > self.box_xy) | (pz > self.box_z)
+        return (touching & (tipped | hard)) | outside
 
 
 @dataclass

@@ -225,7 +225,6 @@ class QuadrotorEnv(EnvBase):
         # as it always was: the product's summation order, and so its last bits, follow the layout
         self._torque_rows = np.array(list(zip(*self.airframe.torque_rows(), strict=True))).T
         self._hull = self.airframe.hull_half_size
-        self._cos_ground_tilt = math.cos(math.radians(self.termination.ground_tilt_deg))
         self._generator = torch.Generator()
         self._generator.manual_seed(0 if seed is None else seed)
         self._make_specs()
@@ -551,15 +550,7 @@ class QuadrotorEnv(EnvBase):
     def _crashed_reward(self, r: np.ndarray, phys: np.ndarray, cos_tilt: np.ndarray, prev_vz: np.ndarray):
         """(scale * (r - crash_penalty where crashed), crashed): the crash rule of TerminationParams."""
         rp, tp = self.reward_params, self.termination
-        px, py, pz, w, x, y, z = phys[:, 1:8].T
-        # Lowest point of the collision box: is the drone touching the floor?
-        hx, hy, hz = self._hull
-        lowest = pz - (hx * np.abs(2 * (x * z - w * y)) + hy * np.abs(2 * (y * z + w * x)) + hz * np.abs(cos_tilt))
-        touching = lowest < 0.005
-        tipped = cos_tilt < self._cos_ground_tilt
-        hard = prev_vz < -tp.crash_speed
-        outside = (np.abs(px) > tp.box_xy) | (np.abs(py) > tp.box_xy) | (pz > tp.box_z)
-        crashed = (touching & (tipped | hard)) | outside
+        crashed = tp.crashed(phys[:, 1:4].T, phys[:, 4:8].T, cos_tilt, prev_vz, self._hull)
         r = np.where(crashed, r - rp.crash_penalty, r) * rp.scale
         return r, crashed
 

@@ -13,7 +13,7 @@ from tensordict.nn import TensorDictModuleBase
 from bfc.agent import load_policy
 from bfc.envs import GOAL, REFERENCE_PHYSICS_DT, AirframeParams
 from bfc.evaluation.flights import run_flights
-from bfc.factory import make_flight_env
+from bfc.factory import make_flight_env, trained_rate
 
 
 def is_module(controller) -> bool:
@@ -106,8 +106,7 @@ def fly(
     elif isinstance(controller, (str, bytes)) or hasattr(controller, "__fspath__"):
         spec, controller = load_policy(controller)
     else:
-        allowed = f"a policy.pt or .onnx path, one of {sorted(CONTROLLERS)} or a TensorDictModule"
-        raise ValueError(f"controller must be {allowed}, got {controller!r}")
+        raise ValueError(f"controller must be {controller_kinds()}, got {controller!r}")
     rate = None if spec is not None and control_hz is None else float(control_hz or PROTOCOL_HZ)
     env = make_flight_env(
         starts.shape[0],
@@ -135,6 +134,13 @@ def fly(
         env.close()
 
 
+def controller_kinds() -> str:
+    """What `fly` and `fly_rotorpy` fly, for their error."""
+    from bfc.controllers import CONTROLLERS
+
+    return f"a policy.pt or .onnx path, one of {sorted(CONTROLLERS)} or a TensorDictModule"
+
+
 def is_onnx_path(controller) -> bool:
     return (isinstance(controller, (str, bytes)) or hasattr(controller, "__fspath__")) and str(controller).endswith(
         ".onnx"
@@ -149,6 +155,4 @@ def onnx_controller(path, control_hz=None):
         controller = OnnxController(path)
     except ImportError as err:  # the onnx extra: one line, as for any bad input
         raise ValueError(str(err).splitlines()[0]) from None
-    if control_hz is not None and float(control_hz) != controller.control_hz:
-        raise ValueError(f"{path} was trained at {controller.control_hz:g} Hz and is flown at that rate only")
-    return controller, controller.control_hz
+    return controller, trained_rate(controller.control_hz, control_hz, path)

@@ -44,9 +44,17 @@ from bfc.envs import GOAL, REFERENCE_PHYSICS_DT, AirframeParams, TerminationPara
 from bfc.envs.quadrotor import BODY, build_model
 from bfc.envs.rotations import euler_to_quat, quat_to_euler
 from bfc.evaluation.flights import one_torch_thread
-from bfc.evaluation.flying import PROTOCOL_HZ, airframe_of, is_module, is_onnx_path, onnx_controller
+from bfc.evaluation.flying import (
+    PROTOCOL_HZ,
+    airframe_of,
+    controller_kinds,
+    is_module,
+    is_onnx_path,
+    onnx_controller,
+)
 from bfc.evaluation.protocol import TEST_SEED
 from bfc.evaluation.suites import CONDITIONS, robust_results
+from bfc.factory import trained_rate
 
 INSTALL_HINT = 'sim=rotorpy needs RotorPy: pip install -e ".[rotorpy]"'
 # RotorPy's own vehicles (an "X": r1 front-left, r2 front-right, r3 back-right, r4 back-left), by
@@ -212,8 +220,7 @@ class RotorPyQuads:
         self.max_speed = float(params["rotor_speed_max"])
         self.ground, self.hull = body.ground_height, body.hull_half_size
         self.beta = min(0.5, max(0.1, float(params.get("ground_friction_beta", 0.3))))  # RotorPy's clamp
-        t = TerminationParams()
-        self.termination, self.cos_tipped = t, math.cos(math.radians(t.ground_tilt_deg))
+        self.termination = TerminationParams()
         self.alive = torch.ones(n, dtype=torch.bool)
         self.lin_acc, self.ang_acc = torch.zeros(n, 3, dtype=f64), torch.zeros(n, 3, dtype=f64)
 
@@ -288,17 +295,11 @@ class RotorPyQuads:
         st["q"][on] = torch.from_numpy(Rotation.from_euler("Z", heading[:, None]).as_quat())
 
     def _crashed(self, prev_vz: torch.Tensor) -> torch.Tensor:
-        """bfc's crash rule (QuadrotorEnv): the hull touching the floor tipped over or hitting it
-        hard, or leaving the box."""
+        """bfc's crash rule, QuadrotorEnv's own (TerminationParams.crashed): the hull touching the
+        floor tipped over or hitting it hard, or leaving the box."""
         w, x, y, z = self.quaternion().unbind(-1)
-        px, py, pz = self.state["x"].unbind(-1)
         cos_tilt = 1 - 2 * (x * x + y * y)
-        hx, hy, hz = self.hull
-        lowest = pz - (hx * (2 * (x * z - w * y)).abs() + hy * (2 * (y * z + w * x)).abs() + hz * cos_tilt.abs())
-        t = self.termination
-        touching = lowest < 0.005
-        outside = (px.abs() > t.box_xy) | (py.abs() > t.box_xy) | (pz > t.box_z)
-        return (touching & ((cos_tilt < self.cos_tipped) | (prev_vz < -t.crash_speed))) | outside
+        return self.termination.crashed(self.state["x"].unbind(-1), (w, x, y, z), cos_tilt, prev_vz, self.hull)
 
 
 def _resolve(controller, control_hz, nominal: AirframeParams | None = None):
@@ -315,12 +316,8 @@ def _resolve(controller, control_hz, nominal: AirframeParams | None = None):
         return None, *onnx_controller(controller, control_hz)
     if isinstance(controller, (str, bytes)) or hasattr(controller, "__fspath__"):
         spec, net = load_policy(controller)
-        if control_hz is not None and float(control_hz) != spec.control_hz:
-            raise ValueError(f"this policy was trained at {spec.control_hz:g} Hz and is flown at that rate only")
-        return spec, net, spec.control_hz
-    raise ValueError(
-        f"controller must be a policy.pt or .onnx path, one of {sorted(CONTROLLERS)} or a TensorDictModule"
-    )
+        return spec, net, trained_rate(spec.control_hz, control_hz)
+    raise ValueError(f"controller must be {controller_kinds()}")
 
 
 @torch.no_grad()
