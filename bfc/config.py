@@ -21,16 +21,16 @@ import functools
 import math
 import types
 import typing
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, make_dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Optional
 
 from hydra.core.config_store import ConfigStore
 from omegaconf import DictConfig, OmegaConf
 
 from bfc.checks import check
 from bfc.envs.params import GOAL, AirframeParams, RandomizeParams, RewardParams, StartParams, TerminationParams
-from bfc.keys import ACTIVATION_NAMES
+from bfc.keys import ACTIVATION_NAMES, OBSERVATION_SCALE_NAMES
 
 CONF_DIR = Path(__file__).resolve().parents[1] / "conf"  # the repository's Hydra configs
 
@@ -146,6 +146,14 @@ class LatencyConfig:
     curriculum: bool = True
 
 
+# model.observation_scales: one optional key per constant (null: the policy default), so that
+# `model.observation_scales.<name>=...` needs no "+" and a misspelt name is refused
+ObservationScalesConfig = make_dataclass(
+    "ObservationScalesConfig",
+    [(name, Optional[float], None) for name in OBSERVATION_SCALE_NAMES],  # noqa: UP045
+)
+
+
 @dataclass
 class ModelConfig:
     """The policy (bfc.agent.PolicySpec reads these) and the critic."""
@@ -171,6 +179,11 @@ class ModelConfig:
     # running mean/std of the observation in front of actor and critic, saved in the policy file
     # (OpenAI Baselines' VecNormalize; +preset=paper). bfc's own observation is scaled by hand
     normalize_observation: bool = False
+    # the observation's scales, clip and integral constants, any of keys.OBSERVATION_SCALE_NAMES
+    # (e.g. model.observation_scales.integral_settled_radius=0.3: the integral within 0.3 m only,
+    # as before the settled band); the rest are bfc.transforms.OBSERVATION_SCALES. The policy file
+    # stores them all (docs/transforms.md, "Policy-side maps")
+    observation_scales: ObservationScalesConfig = field(default_factory=lambda: ObservationScalesConfig())
 
 
 @dataclass
@@ -833,6 +846,10 @@ def validate(cfg) -> None:
     names = ACTIVATION_NAMES
     allowed = f"{', '.join(names[:-1])} or {names[-1]}"
     check(cfg.model.activation in names, "model.activation", allowed, cfg.model.activation)
+    for name in OBSERVATION_SCALE_NAMES:
+        value = getattr(cfg.model.observation_scales, name)
+        ok = value is None or (isinstance(value, (int, float)) and math.isfinite(value) and value > 0)
+        check(ok, f"model.observation_scales.{name}", "> 0 or null", value)
     check(cfg.model.init_std > 0, "model.init_std", "> 0", cfg.model.init_std)
     max_std = cfg.model.max_std
     check(

@@ -6,6 +6,19 @@ Keys are the contract between the packages: name them once, import them everywhe
 # the policy network's activations (model.activation): bfc.agent.actor maps each to its module and
 # bfc.config checks the name before torch loads, so the names live in this leaf
 ACTIVATION_NAMES = ("tanh", "relu", "elu")
+# The observation's scales, clip and integral constants a policy carries (their values for a new
+# policy: bfc.transforms.observation.OBSERVATION_SCALES; `model.observation_scales` overrides any)
+OBSERVATION_SCALE_NAMES = (
+    "position_clip",
+    "velocity_scale",
+    "angular_velocity_scale",
+    "acceleration_scale",
+    "integral_radius",
+    "integral_limit",
+    "integral_scale",
+    "integral_settled_radius",
+    "integral_settled_speed",
+)
 
 ACTION = "action"  # (N, 4) motor speed commands, rad/s, motor order of AirframeParams.motor_order()
 ODOMETRY = "odometry"  # (N, 18) what the sensors report (noise transforms act here)

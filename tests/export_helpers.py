@@ -54,6 +54,8 @@ SCALED = {
     "integral_radius": 0.6,
     "integral_limit": 0.2,
     "integral_scale": 2.0,
+    "integral_settled_radius": 2.0,  # wide and fast: many of the parity rows integrate as settled
+    "integral_settled_speed": 3.0,
 }
 
 

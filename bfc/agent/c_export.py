@@ -304,6 +304,8 @@ def generate_c(spec: PolicySpec, net, source: str = "policy.pt", name: str = "po
 #define {P}_INTEGRAL_SCALE {c_float(obs.integral_scale)}
 #define {P}_INTEGRAL_DT {c_float(obs.dt)} /* s: 1 / control rate */
 #define {P}_INTEGRAL_RADIUS_SQ {c_float(obs.integral_radius**2)} /* m^2: integrate within this of the goal */
+#define {P}_INTEGRAL_SETTLED_RADIUS_SQ {c_float(obs.integral_settled_radius**2)} /* m^2: and this while settled */
+#define {P}_INTEGRAL_SETTLED_SPEED_SQ {c_float(obs.integral_settled_speed**2)} /* (m/s)^2: settled: slower than this */
 #define {P}_INTEGRAL_LIMIT {c_float(obs.integral_limit)} /* m s: the integral's clip */
 #define {P}_THRUST_RATIO_MAX {c_float((action.max_speed / action.hover_speed) ** 2)} /* (max / hover)^2 */
 
@@ -417,12 +419,16 @@ static inline float {p}_to_command(float action)
 /* ---- the observation map (PolicyObservation) ---- */
 
 /* the position-error integral after this control step (PolicyObservation.integrate): add the
- * error times dt when within the radius of the goal, then clip each axis to +-limit */
+ * error times dt when within the radius of the goal, or within the settled radius while slower
+ * than the settled speed, then clip each axis to +-limit */
 static inline void {p}_integrate(const float integral_in[3], const float odometry[18], const float goal[3],
         float integral_out[3])
 {{
     const float e[3] = {{odometry[0] - goal[0], odometry[1] - goal[1], odometry[2] - goal[2]}};
-    const float near = (e[0] * e[0] + e[1] * e[1] + e[2] * e[2]) < {P}_INTEGRAL_RADIUS_SQ ? 1.0f : 0.0f;
+    const float d2 = e[0] * e[0] + e[1] * e[1] + e[2] * e[2];
+    const float v2 = odometry[3] * odometry[3] + odometry[4] * odometry[4] + odometry[5] * odometry[5];
+    const int settled = v2 < {P}_INTEGRAL_SETTLED_SPEED_SQ && d2 < {P}_INTEGRAL_SETTLED_RADIUS_SQ;
+    const float near = (d2 < {P}_INTEGRAL_RADIUS_SQ || settled) ? 1.0f : 0.0f;
     int k;
     for (k = 0; k < 3; ++k) {{
         const float before = integral_in ? integral_in[k] : 0.0f;

@@ -6,7 +6,7 @@ A policy file is data, never code: a dict of tensors, numbers and strings that l
     {"format": "bfc-policy-v2", "spec": PolicySpec.to_dict(), "state_dict": GaussianActor's, "info": {...}}
 
 The spec holds every constant the policy's maps use, the observation's scales included; a v2 file
-written before those were stored loads with the values it was trained with
+written before those (or some of them) were stored loads with the values it was trained with
 (LEGACY_OBSERVATION_SCALES).
 
 It is written atomically (a temporary name, then a rename). Files of the earlier format
@@ -27,8 +27,10 @@ from bfc.agent.spec import PolicySpec
 
 POLICY_FORMAT = "bfc-policy-v2"
 # The observation constants every file written before they were stored was trained with (files
-# whose spec has no `observation_scales`: v1, and v2 before it): frozen here, not read from the
-# defaults, so that a new default never changes an old policy.
+# whose spec has no `observation_scales`: v1, and v2 before it; a file that stores some of them
+# has the rest from here): frozen here, not read from the defaults, so that a new default never
+# changes an old policy. The settled integration came later: a settled radius equal to the radius
+# integrates exactly where the policies before it did.
 LEGACY_OBSERVATION_SCALES = {
     "position_clip": 3.0,
     "velocity_scale": 0.5,
@@ -37,6 +39,8 @@ LEGACY_OBSERVATION_SCALES = {
     "integral_radius": 0.3,
     "integral_limit": 0.5,
     "integral_scale": 4.0,
+    "integral_settled_radius": 0.3,
+    "integral_settled_speed": 0.2,
 }
 
 
@@ -83,7 +87,8 @@ def read_policy(path) -> PolicyFile:
     found = payload.get("format") if isinstance(payload, dict) else None
     try:
         if found == POLICY_FORMAT:
-            spec = {"observation_scales": LEGACY_OBSERVATION_SCALES, **payload["spec"]}  # stored ones win
+            stored = payload["spec"].get("observation_scales") or {}
+            spec = {**payload["spec"], "observation_scales": {**LEGACY_OBSERVATION_SCALES, **stored}}  # stored win
             policy = PolicyFile(PolicySpec.from_dict(spec), payload["state_dict"], payload.get("info", {}))
         elif found == "bfc-policy-v1":
             policy = _read_v1(payload)

@@ -42,7 +42,7 @@ class PolicySpec:
     normalize_observation: bool = False
     control_hz: float = 100.0  # the rate the policy was trained at, and is flown at
     airframe: dict = field(default_factory=dict)  # the nominal airframe: AirframeParams overrides
-    # the observation's scales, clip and integral constants (all seven, OBSERVATION_SCALES's names;
+    # the observation's scales, clip and integral constants (all of OBSERVATION_SCALES's names;
     # given ones override the defaults): part of the policy, so its file and exports carry them
     observation_scales: dict = field(default_factory=dict)
 
@@ -108,6 +108,11 @@ class PolicySpec:
             normalize_observation=m.normalize_observation,
             control_hz=e.control_hz,
             airframe=airframe,
+            observation_scales={
+                k: float(getattr(m.observation_scales, k))
+                for k in OBSERVATION_SCALES
+                if getattr(m.observation_scales, k, None) is not None
+            },
         )
 
     def to_dict(self) -> dict:
@@ -162,5 +167,5 @@ class PolicySpec:
             dt=1.0 / self.control_hz if dt is None else dt,
             kind=self.observation,
             command_history=self.command_history,
-            **self.observation_scales,
+            scales=self.observation_scales,
         )

@@ -15,10 +15,13 @@ numbers as they come, the position made relative to the goal, no previous comman
 `position_integral=True` adds the integral of the position error (3 numbers, heading frame): a
 memoryless policy cannot tell a heavier body, a weaker motor or wind from its own error, so it
 hovers off the goal by the offset such a disturbance needs; with the integral it can remove it,
-as the integral term of a PID does. It integrates only within `integral_radius` of the goal (no
-wind-up while flying in from afar) and is clipped to +-`integral_limit` (m s); it restarts with
-each episode, from the error of the episode's first odometry (so at every step it includes the
-current error: the same recursion the exported policies run, bfc/agent/onnx.py).
+as the integral term of a PID does. It integrates within `integral_radius` of the goal, and
+farther out (within `integral_settled_radius`) only while the drone is settled, slower than
+`integral_settled_speed`: no wind-up while flying in from afar, yet a push that holds the drone
+still beyond the radius (twice the trained wind holds a policy about 35 cm off) is integrated away.
+It is clipped to +-`integral_limit` (m s); it restarts with each episode, from the error of the
+episode's first odometry (so at every step it includes the current error: the same recursion the
+exported policies run, bfc/agent/onnx.py).
 
 `command_history=k` adds the k commands before the previous one (4 k more inputs, newest first, in
 the policy's action space, hover after a reset): with odometry that arrives late or commands that
@@ -39,7 +42,7 @@ from bfc.transforms._base import BatchedTransform, check, reset_mask
 OBSERVATIONS = ("heading", "odometry")
 # The observation's scales, clip and integral constants: a policy's own (PolicySpec stores them in
 # its file, the exports read them from there); these are what a new policy gets.
-OBSERVATION_SCALES = {
+OBSERVATION_SCALES = {  # keys.OBSERVATION_SCALE_NAMES, in that order
     "position_clip": 3.0,  # m: the goal-relative position's clip
     "velocity_scale": 0.5,
     "angular_velocity_scale": 0.1,
@@ -47,6 +50,9 @@ OBSERVATION_SCALES = {
     "integral_radius": 0.3,  # m: integrate within this of the goal
     "integral_limit": 0.5,  # m s: the integral's clip
     "integral_scale": 4.0,
+    # m, m/s: beyond integral_radius, integrate while settled (slower than this) within this radius
+    "integral_settled_radius": 1.0,
+    "integral_settled_speed": 0.2,
 }
 
 
@@ -82,33 +88,30 @@ class PolicyObservation(BatchedTransform):
         self,
         num_envs: int,
         hover_speed: float,
-        position_clip: float = OBSERVATION_SCALES["position_clip"],
-        velocity_scale: float = OBSERVATION_SCALES["velocity_scale"],
-        angular_velocity_scale: float = OBSERVATION_SCALES["angular_velocity_scale"],
         include_acceleration: bool = False,
-        acceleration_scale: float = OBSERVATION_SCALES["acceleration_scale"],
         command_to_action=None,
         position_integral: bool = False,
         dt: float = 0.01,
-        integral_radius: float = OBSERVATION_SCALES["integral_radius"],
-        integral_limit: float = OBSERVATION_SCALES["integral_limit"],
-        integral_scale: float = OBSERVATION_SCALES["integral_scale"],
         kind: str = "heading",
         command_history: int = 0,
+        scales: dict | None = None,
     ):
+        """scales: any of OBSERVATION_SCALES's constants (a policy's own, from its PolicySpec);
+        the rest are OBSERVATION_SCALES's."""
         super().__init__(num_envs, in_keys=[keys.ODOMETRY, keys.GOAL], out_keys=[keys.OBSERVATION])
         check(hover_speed > 0, "hover_speed", "> 0", hover_speed)
-        check(position_clip > 0, "position_clip", "> 0 (metres)", position_clip)
+        given = dict(scales or {})
+        unknown = sorted(set(given) - set(OBSERVATION_SCALES))
+        check(not unknown, "observation scales", f"among {', '.join(OBSERVATION_SCALES)}", unknown)
+        for name, default in OBSERVATION_SCALES.items():
+            value = float(given.get(name, default))
+            check(value > 0, name, "> 0", value)
+            setattr(self, name, value)
         self.hover_speed = float(hover_speed)
-        self.position_clip = float(position_clip)
-        self.velocity_scale = float(velocity_scale)
-        self.angular_velocity_scale = float(angular_velocity_scale)
         self.include_acceleration = bool(include_acceleration)
-        self.acceleration_scale = float(acceleration_scale)
         self.position_integral = bool(position_integral)
         check(dt > 0, "dt", "> 0", dt)
-        self.dt, self.integral_radius = float(dt), float(integral_radius)
-        self.integral_limit, self.integral_scale = float(integral_limit), float(integral_scale)
+        self.dt = float(dt)
         self.kind = kind
         self.size = observation_size(kind, include_acceleration, position_integral, command_history)
         self.command_history = int(command_history)
@@ -122,7 +125,10 @@ class PolicyObservation(BatchedTransform):
     def integrate(self, integral: torch.Tensor, odometry: torch.Tensor, goal: torch.Tensor) -> torch.Tensor:
         """The position-error integral after one more control step (world frame)."""
         error = odometry[..., 0:3] - goal
-        near = (error.square().sum(-1, keepdim=True) < self.integral_radius**2).to(error.dtype)
+        distance2 = error.square().sum(-1, keepdim=True)
+        settled = odometry[..., 3:6].square().sum(-1, keepdim=True) < self.integral_settled_speed**2
+        near = (distance2 < self.integral_radius**2) | (settled & (distance2 < self.integral_settled_radius**2))
+        near = near.to(error.dtype)
         return (integral + near * error * self.dt).clamp(-self.integral_limit, self.integral_limit)
 
     def build(

@@ -101,7 +101,16 @@ def test_a_policy_file_carries_its_observation_constants_and_older_files_keep_th
     header = export_c(path, tmp_path / "policy.h").read_text()
     assert "#define BFC_POLICY_POSITION_CLIP 0.5f /* m */" in header
     assert "#define BFC_POLICY_INTEGRAL_LIMIT 0.200000003f" in header  # float32's 0.2
+    assert "#define BFC_POLICY_INTEGRAL_SETTLED_RADIUS_SQ 4.0f" in header
     older = torch.load(path, weights_only=True)  # as a v2 file written before the constants were stored
+    seven = {k: v for k, v in SCALED.items() if not k.startswith("integral_settled")}
+    older["spec"]["observation_scales"] = seven  # ... before the settled integration came
+    torch.save(older, tmp_path / "seven.pt")
+    assert read_policy(tmp_path / "seven.pt").spec.observation_scales == {
+        **seven,
+        "integral_settled_radius": LEGACY_OBSERVATION_SCALES["integral_settled_radius"],
+        "integral_settled_speed": LEGACY_OBSERVATION_SCALES["integral_settled_speed"],
+    }
     del older["spec"]["observation_scales"]
     torch.save(older, tmp_path / "older.pt")
     monkeypatch.setitem(OBSERVATION_SCALES, "position_clip", 9.0)  # a default changes ...

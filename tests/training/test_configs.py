@@ -337,3 +337,24 @@ def test_paper_preset_builds_the_env_it_says():
     odometry, goal = td["odometry"], td["goal"]
     assert obs.size == 18
     torch.testing.assert_close(td["observation"], torch.cat((odometry[:, 0:3] - goal, odometry[:, 3:18]), -1))
+
+
+def test_a_policys_observation_constants_are_set_by_key_and_stored_with_it():
+    """`model.observation_scales.<name>` (no "+") sets one constant of the policy's maps; the rest
+    stay the defaults; the spec (and so the policy file and the exports) carries them; a misspelt
+    name or a value <= 0 is one line."""
+    from bfc.agent import PolicySpec
+    from bfc.keys import OBSERVATION_SCALE_NAMES
+    from bfc.transforms import OBSERVATION_SCALES
+
+    assert tuple(OBSERVATION_SCALES) == OBSERVATION_SCALE_NAMES  # one list of names, torch-free for the config
+    cfg = compose_cfg(["model.observation_scales.integral_settled_radius=0.3"])
+    validate(cfg)
+    spec = PolicySpec.from_config(cfg)
+    assert spec.observation_scales == {**OBSERVATION_SCALES, "integral_settled_radius": 0.3}
+    assert spec.make_observation_map(2).integral_settled_radius == 0.3
+    assert PolicySpec.from_config(compose_cfg([])).observation_scales == OBSERVATION_SCALES
+    r = run_cli("model.observation_scales.integral_radiuss=0.3")
+    assert "unknown config key 'model.observation_scales.integral_radiuss'" in one_line_error(r)
+    r = run_cli("model.observation_scales.integral_limit=0")
+    assert one_line_error(r) == "error: model.observation_scales.integral_limit must be > 0 or null, got 0.0"

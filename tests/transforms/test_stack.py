@@ -164,15 +164,15 @@ def test_position_integral_accumulates_near_the_goal_clips_and_restarts_per_env(
     obs = find_transform(env, PolicyObservation)
     assert obs.size == 25 and env.observation_spec[keys.OBSERVATION].shape == (3, 25)
     starts = torch.zeros(3, 12)
-    starts[:, 0:3] = torch.tensor([[0.1, 0.0, 1.5], [0.0, 0.0, 1.5 - 0.2], [1.0, 0.0, 1.5]])  # 1 m: outside
+    starts[:, 0:3] = torch.tensor([[0.1, 0.0, 1.5], [0.0, 0.0, 1.5 - 0.2], [1.5, 0.0, 1.5]])  # 1.5 m: outside
     starts[0, 5] = torch.pi / 2  # yawed by 90 deg: the world +x error is the heading frame's -y
     find_transform(env, GivenStarts).set_starts(starts)
     td = env.reset()
     goal = env.base_env.goal
 
-    def near_error(td):
+    def near_error(td):  # all three envs start at rest: slow enough to integrate as settled
         error = td[keys.POSITION] - goal
-        return torch.where(error.norm(dim=-1, keepdim=True) < obs.integral_radius, error * obs.dt, 0.0)
+        return torch.where(error.norm(dim=-1, keepdim=True) < obs.integral_settled_radius, error * obs.dt, 0.0)
 
     first = near_error(td)  # from the first odometry on: the integral includes the current error
     torch.testing.assert_close(obs.integral, first)
@@ -191,6 +191,13 @@ def test_position_integral_accumulates_near_the_goal_clips_and_restarts_per_env(
     for _ in range(1000):
         integral = obs.integrate(integral, odometry, zero)
     assert integral.tolist() == [[obs.integral_limit, -obs.integral_limit, 0.0]]
+    # beyond the radius it integrates only while settled: held still 0.5 m off (as a strong wind
+    # holds a drone) it does; flying past the same point (1 m/s) it does not
+    odometry[0, 0:3] = torch.tensor([0.5, 0.0, 0.0])
+    assert obs.integral_radius < 0.5 < obs.integral_settled_radius
+    torch.testing.assert_close(obs.integrate(zero, odometry, zero), torch.tensor([[0.5 * obs.dt, 0.0, 0.0]]))
+    odometry[0, 3] = -1.0
+    assert obs.integrate(zero, odometry, zero).tolist() == [[0.0, 0.0, 0.0]]
     before = obs.integral.clone()
     env.reset(td.clone().set("_reset", torch.tensor([[True], [False], [False]])))  # env 0 back at its start
     assert torch.equal(obs.integral[0], first[0]) and torch.equal(obs.integral[1:], before[1:])
