@@ -152,6 +152,7 @@ ObservationScalesConfig = make_dataclass(
     "ObservationScalesConfig",
     [(name, Optional[float], None) for name in OBSERVATION_SCALE_NAMES],  # noqa: UP045
 )
+ObservationScalesConfig.__module__ = __name__  # pickled configs (launchers, workers) find it here
 
 
 @dataclass

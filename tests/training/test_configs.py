@@ -1,5 +1,6 @@
 """Config composition, ablation files, validation of bad overrides (through the real CLI)."""
 
+import pickle
 import subprocess
 import sys
 
@@ -350,6 +351,7 @@ def test_a_policys_observation_constants_are_set_by_key_and_stored_with_it():
     assert tuple(OBSERVATION_SCALES) == OBSERVATION_SCALE_NAMES  # one list of names, torch-free for the config
     cfg = compose_cfg(["model.observation_scales.integral_settled_radius=0.3"])
     validate(cfg)
+    cfg = pickle.loads(pickle.dumps(cfg))  # as launchers and collection workers receive it
     spec = PolicySpec.from_config(cfg)
     assert spec.observation_scales == {**OBSERVATION_SCALES, "integral_settled_radius": 0.3}
     assert spec.make_observation_map(2).integral_settled_radius == 0.3
