@@ -10,9 +10,9 @@ from bfc.controllers.base import Controller, Odometry
 from bfc.controllers.lee import LeeController, LeeGains, lee_with_integral
 from bfc.controllers.mixer import Mixer, allocation_matrix
 from bfc.controllers.mpc import LinearMPC, MPCParams
-from bfc.controllers.tuned import TUNED, build, tuned_factors
+from bfc.controllers.tuned import MAKERS, TUNED, build, tuned_factors
 
-CONTROLLERS = {name: partial(build, name) for name in ("lee", "lee_i", "mpc")}
+CONTROLLERS = {name: partial(build, name) for name in MAKERS}
 
 __all__ = [
     "CONTROLLERS",

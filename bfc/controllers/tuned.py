@@ -30,7 +30,11 @@ TUNED: dict[str, dict[str, dict[str, float]]] = {
     },
 }
 
-_MAKERS = {"lee": LeeController, "lee_i": lee_with_integral, "mpc": LinearMPC}
+MAKERS = {  # every baseline by name (config.CONTROLLER_NAMES checks names before torch loads)
+    "lee": LeeController,
+    "lee_i": lee_with_integral,
+    "mpc": LinearMPC,
+}
 
 
 def tuned_factors(name: str, airframe: AirframeParams) -> dict[str, float]:
@@ -41,5 +45,5 @@ def tuned_factors(name: str, airframe: AirframeParams) -> dict[str, float]:
 def build(name: str, airframe: AirframeParams, dt: float, tuned: bool = True) -> Controller:
     """Baseline `name` for `airframe` at period `dt`, with the airframe's tuned gains (tuned=False:
     without them, as the tuning grid starts)."""
-    controller = _MAKERS[name](airframe, dt)
+    controller = MAKERS[name](airframe, dt)
     return controller.scale_gains(**tuned_factors(name, airframe)) if tuned else controller
