@@ -5,9 +5,11 @@ config's env, per network size, activation, torch thread count and loss path.
 
 A size is "actor,critic", each a width (two hidden layers) or WIDTHxDEPTH.
 
-"fused" is what training runs (`bfc.training.ppo.FusedClipLoss`: ClipPPOLoss's values in plain
-torch); "ClipPPOLoss" calls TorchRL's module on TensorDict minibatches, as before it. The rows
-are measured in alternating rounds and the medians printed (shared cores change speed).
+"bfc" is what training runs (`loss.implementation=bfc`, bfc.training.ppo_step: the step with its
+gradients written out, one flat Adam); "torchrl" is `loss.implementation=torchrl`: TorchRL's
+ClipPPOLoss on TensorDict minibatches, autograd and torch's Adam. The rows are measured in
+alternating rounds and the medians printed (shared cores change speed), each beside the machine's
+raw MuJoCo speed (bench/env_throughput.py's figure, so that machines can be compared).
 """
 
 from __future__ import annotations
@@ -17,11 +19,14 @@ import statistics
 import time
 
 import torch
+from time_to_success import raw_mujoco_rate  # bench/ is the script's directory
 
 from bfc.agent import PolicySpec, make_critic, torchrl_actor
 from bfc.config import compose, minibatch_size
 from bfc.factory import make_env
-from bfc.training.ppo import PPO, ppo_update
+from bfc.training.ppo import PPO
+
+IMPLEMENTATIONS = ("bfc", "torchrl")  # loss.implementation
 
 
 def layers(size: str) -> list[int]:
@@ -46,28 +51,35 @@ def main() -> None:
         f"# batch {c.frames_per_batch} frames, {lo.epochs} epochs, minibatch {minibatch_size(cfg)};"
         f" medians of {args.rounds} rounds"
     )
-    print("| actor | critic | activation | torch threads | fused (s) | ClipPPOLoss (s) |")
-    print("|---|---|---|---|---|---|")
+    print(f"# raw MuJoCo: {raw_mujoco_rate(list(args.overrides)):,.0f} steps/s at 256 envs")
+    print("| actor | critic | activation | torch threads | bfc (s) | torchrl (s) | ratio |")
+    print("|---|---|---|---|---|---|---|")
     for size in args.sizes:
         for act in args.activations:
             a, w = size.split(",")
             cfg.model.activation, cfg.model.actor_hidden, cfg.model.critic_hidden = act, layers(a), layers(w)
-            spec = PolicySpec.from_config(cfg)
-            actor = torchrl_actor(spec.make_net(), env.action_spec)
-            critic = make_critic(spec.observation_size, cfg.model.critic_hidden, act)
-            with torch.no_grad():
-                data = env.rollout(steps, actor, break_when_any_done=False)
-            learner = PPO(cfg, actor, critic)
+            learners, data = {}, None
+            for implementation in IMPLEMENTATIONS:
+                cfg.loss.implementation = implementation
+                torch.manual_seed(0)
+                spec = PolicySpec.from_config(cfg)
+                net = spec.make_net()
+                actor = torchrl_actor(net, env.action_spec)
+                critic = make_critic(spec.observation_size, cfg.model.critic_hidden, act, net.obs_norm)
+                if data is None:
+                    with torch.no_grad():
+                        data = env.rollout(steps, actor, break_when_any_done=False)
+                learners[implementation] = PPO(cfg, actor, critic)
             for threads in args.threads:
                 torch.set_num_threads(threads)
-                times = {"fused": [], "ClipPPOLoss": []}
+                times = {name: [] for name in IMPLEMENTATIONS}
                 for _ in range(args.rounds):
-                    for name, fused in (("fused", learner.fused), ("ClipPPOLoss", None)):
+                    for name, learner in learners.items():
                         t = time.perf_counter()
-                        ppo_update(data.clone(), learner.loss_module, learner.advantage, learner.optimizer, cfg, fused)
+                        learner.update(data.clone())
                         times[name].append(time.perf_counter() - t)
-                f, r = (statistics.median(times[k]) for k in ("fused", "ClipPPOLoss"))
-                print(f"| {a} | {w} | {act} | {threads} | {f:.3f} | {r:.3f} |", flush=True)
+                f, r = (statistics.median(times[k]) for k in IMPLEMENTATIONS)
+                print(f"| {a} | {w} | {act} | {threads} | {f:.3f} | {r:.3f} | {f / r:.2f} |", flush=True)
 
 
 if __name__ == "__main__":

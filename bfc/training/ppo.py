@@ -6,12 +6,11 @@ from __future__ import annotations
 import torch
 from tensordict import TensorDictBase
 from torchrl.objectives import ClipPPOLoss, KLPENPPOLoss
-from torchrl.objectives.utils import distance_loss
 
 from bfc import keys
-from bfc.agent import GaussianActor, gaussian_net
 from bfc.config import minibatch_size
 from bfc.training.advantage import compute_advantage, make_gae
+from bfc.training.ppo_step import PPOStep
 
 # What the loss reads; selecting these first makes every minibatch gather cheaper.
 _LOSS_KEYS = (
@@ -34,58 +33,6 @@ LOSS_TAGS = {
 }
 
 
-class FusedClipLoss:
-    """ClipPPOLoss's forward (eq. 11's clipped surrogate on per-minibatch standardised advantages,
-    the critic loss of its `loss_critic_type`, the entropy term, the approximate KL and the clip
-    fraction) in plain torch on the actor's GaussianActor and the critic's MLP: the same values and
-    gradients as the ClipPPOLoss it is built from (tests/training/test_hot_path.py), without that
-    module's per-call TensorDict and functional-parameter plumbing, which costs more than the
-    networks themselves at the small minibatches bfc trains with (bench/update_time.py).
-    Every option of the loss is read from it; one it does not implement is refused."""
-
-    def __init__(self, loss: ClipPPOLoss, actor, critic):
-        unsupported = {
-            "separate_losses": loss.separate_losses or None,
-            "advantage_norm": getattr(loss, "advantage_norm", None),
-            "max_importance_ratio": getattr(loss, "max_importance_ratio", None),
-        }
-        used = [name for name, value in unsupported.items() if value is not None]
-        if used or not loss.normalize_advantage:
-            what = ", ".join(used) or "normalize_advantage=False"
-            raise ValueError(f"the fused PPO loss does not implement ClipPPOLoss's {what}")
-        self.net, self.value = gaussian_net(actor), critic.module
-        epsilon = loss.clip_epsilon.detach().clone()
-        self.low, self.high = (-epsilon).log1p(), epsilon.log1p()  # ClipPPOLoss's bounds on log(ratio)
-        self.critic_coeff = loss.critic_coeff.detach().clone()
-        self.clip_value = float(loss.clip_value) if loss.clip_value is not None else None
-        self.critic_loss = loss.loss_critic_type
-        self.entropy_coeff = float(loss.entropy_coeff)
-        self.eps = torch.finfo(torch.float).resolution  # torchrl's advantage standardisation
-
-    def __call__(self, obs, action, old_log_prob, advantage, value_target, old_value=None) -> dict[str, torch.Tensor]:
-        advantage = (advantage - advantage.mean()) / advantage.std().clamp_min(self.eps)
-        loc, scale = self.net(obs)
-        log_prob = GaussianActor.log_prob(action, loc, scale)
-        log_weight = (log_prob - old_log_prob).unsqueeze(-1)
-        clipped = log_weight.clamp(self.low, self.high)
-        gain = torch.minimum(log_weight.exp() * advantage, clipped.exp() * advantage)
-        entropy = GaussianActor.entropy(scale).unsqueeze(-1)
-        value = self.value(obs)
-        critic = distance_loss(value_target, value, self.critic_loss)
-        if self.clip_value is not None:  # ClipPPOLoss's clip_value: the more pessimistic of the two
-            near = old_value + (value - old_value).clamp(-self.clip_value, self.clip_value)
-            critic = torch.maximum(critic, distance_loss(value_target, near, self.critic_loss))
-        critic = critic * self.critic_coeff
-        return {
-            "loss_objective": -gain.mean(),
-            "loss_critic": critic.mean(),
-            "loss_entropy": (-self.entropy_coeff * entropy).mean(),
-            "entropy": entropy.detach().mean(),
-            "kl_approx": (old_log_prob - log_prob).detach().mean(),
-            "clip_fraction": (clipped != log_weight).float().mean(),
-        }
-
-
 def make_loss(cfg, actor, critic):
     """TorchRL's ClipPPOLoss (or KLPENPPOLoss) and GAE from the `loss` section."""
     lo = cfg.loss
@@ -104,79 +51,86 @@ def make_loss(cfg, actor, critic):
 
 
 class PPO:
-    """The PPO learner (the interface of bfc.training.learners)."""
+    """The PPO learner (the interface of bfc.training.learners): the clipped loss through bfc's
+    own step (`loss.implementation=bfc`, bfc.training.ppo_step) or TorchRL's loss module and
+    torch's Adam (`torchrl`, and always for the KL-penalty loss)."""
 
     def __init__(self, cfg, actor, critic):
         self.cfg = cfg
         self.loss_module, self.advantage = make_loss(cfg, actor, critic)
-        self.fused = FusedClipLoss(self.loss_module, actor, critic) if cfg.loss.kind == "clip" else None
-        # fused: one kernel for every parameter's Adam step (0.25 against 1 ms a step here)
-        self.optimizer = torch.optim.Adam(
-            self.loss_module.parameters(), lr=cfg.optim.lr, eps=cfg.optim.adam_eps, fused=True
-        )
+        o = cfg.optim
+        if cfg.loss.kind == "clip" and cfg.loss.implementation == "bfc":
+            self.step = PPOStep(self.loss_module, actor, critic, o.lr, o.adam_eps, o.max_grad_norm)
+            self.optimizer = self.step.optimizer
+        else:
+            self.step = None
+            # fused: one kernel for every parameter's Adam step (0.25 against 1 ms a step here)
+            self.optimizer = torch.optim.Adam(self.loss_module.parameters(), lr=o.lr, eps=o.adam_eps, fused=True)
         self.optimizers = [self.optimizer]
 
     def update(self, data: TensorDictBase) -> dict[str, float]:
-        return ppo_update(data, self.loss_module, self.advantage, self.optimizer, self.cfg, self.fused)
+        """GAE once per batch (as CleanRL), then `loss.epochs` passes in shuffled minibatches."""
+        compute_advantage(data, self.advantage)
+        metrics = self._update_bfc(data) if self.step is not None else self._update_torchrl(data)
+        metrics.setdefault("loss/clip_fraction", 0.0)  # the KL-penalty loss has no clipping
+        if isinstance(self.loss_module, KLPENPPOLoss):
+            metrics["loss/kl_beta"] = float(self.loss_module.beta)
+        return metrics
 
-    def state_dict(self) -> dict:
-        return {"optimizer": self.optimizer.state_dict(), "loss": self.loss_module.state_dict()}
+    def _minibatches(self, n: int):
+        size = minibatch_size(self.cfg)
+        for _ in range(self.cfg.loss.epochs):
+            perm = torch.randperm(n)
+            for start in range(0, n, size):
+                yield perm[start : start + size]
 
-    def load_state_dict(self, state: dict) -> None:
-        self.optimizer.load_state_dict(state["optimizer"])
-        self.loss_module.load_state_dict(state["loss"], strict=False)
-
-
-def ppo_update(data: TensorDictBase, loss_module, advantage, optimizer, cfg, fused=None) -> dict[str, float]:
-    """GAE once per batch (as CleanRL), then `loss.epochs` passes in shuffled minibatches; with
-    `fused` (a FusedClipLoss) each minibatch is plain tensors through it, else a TensorDict
-    through `loss_module`."""
-    lo, params = cfg.loss, list(loss_module.parameters())
-    size = minibatch_size(cfg)
-    compute_advantage(data, advantage)
-    sums: dict[str, torch.Tensor] = {}
-    if fused is not None:
-        # one (frames, columns) table, so that a minibatch is one gather
+    def _update_bfc(self, data: TensorDictBase) -> dict[str, float]:
+        """Each minibatch one gather from a (frames, columns) table of plain tensors, one PPOStep."""
+        step = self.step
         columns = [
-            data.get(keys.OBSERVATION),
+            step.observe(data.get(keys.OBSERVATION)),
             data.get(keys.ACTION),
-            data.get(loss_module.tensor_keys.sample_log_prob).unsqueeze(-1),
+            data.get(self.loss_module.tensor_keys.sample_log_prob).unsqueeze(-1),
             data.get("advantage"),
             data.get("value_target"),
         ]
-        if fused.clip_value is not None:  # the collected value, which ClipPPOLoss's clip_value keeps the new one near
+        if step.clip_value is not None:  # the collected value, which clip_value keeps the new one near
             columns.append(data.get("state_value"))
         widths = [c.shape[-1] for c in columns]
         table = torch.cat(columns, -1).reshape(data.numel(), -1)
-        n = table.shape[0]
-
-        def loss_of(index):
+        total, count = torch.zeros(len(PPOStep.METRICS)), 0
+        for index in self._minibatches(table.shape[0]):
             obs, action, log_prob, adv, target, *old_value = table[index].split(widths, -1)
-            return fused(obs, action, log_prob.squeeze(-1), adv, target, *old_value)
-    else:
+            total += step(obs, action, log_prob.squeeze(-1), adv, target, *old_value)
+            count += 1
+        return {LOSS_TAGS[key]: float(value) / count for key, value in zip(PPOStep.METRICS, total, strict=True)}
+
+    def _update_torchrl(self, data: TensorDictBase) -> dict[str, float]:
+        """TensorDict minibatches through TorchRL's loss module, autograd, torch's clipping and Adam."""
+        params, optimizer = list(self.loss_module.parameters()), self.optimizer
         flat = data.select(*_LOSS_KEYS, strict=False).reshape(-1)
-        n = flat.shape[0]
-
-        def loss_of(index):
-            return loss_module(flat[index])
-
-    count = 0
-    for _ in range(lo.epochs):
-        perm = torch.randperm(n)
-        for start in range(0, n, size):
-            out = loss_of(perm[start : start + size])
+        sums: dict[str, torch.Tensor] = {}
+        count = 0
+        for index in self._minibatches(flat.shape[0]):
+            out = self.loss_module(flat[index])
             total = out["loss_objective"] + out["loss_critic"] + out.get("loss_entropy", 0.0)
             optimizer.zero_grad(set_to_none=True)
             total.backward()
-            torch.nn.utils.clip_grad_norm_(params, cfg.optim.max_grad_norm)
+            torch.nn.utils.clip_grad_norm_(params, self.cfg.optim.max_grad_norm)
             optimizer.step()
             for key, tag in LOSS_TAGS.items():
                 if key in out.keys():
                     value = out[key].detach().mean()
                     sums[tag] = sums[tag] + value if tag in sums else value
             count += 1
-    metrics = {tag: float(value) / count for tag, value in sums.items()}
-    metrics.setdefault("loss/clip_fraction", 0.0)  # the KL-penalty loss has no clipping
-    if isinstance(loss_module, KLPENPPOLoss):
-        metrics["loss/kl_beta"] = float(loss_module.beta)
-    return metrics
+        return {tag: float(value) / count for tag, value in sums.items()}
+
+    def state_dict(self) -> dict:
+        return {"optimizer": self.optimizer.state_dict(), "loss": self.loss_module.state_dict()}
+
+    def load_state_dict(self, state: dict) -> None:
+        if self.step is not None:
+            self.step.load_state_dict(state["optimizer"])
+        else:
+            self.optimizer.load_state_dict(state["optimizer"])
+        self.loss_module.load_state_dict(state["loss"], strict=False)

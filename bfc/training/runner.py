@@ -136,9 +136,10 @@ class Runner:
         self.best, self.best_error = -1.0, math.inf
         self.timing = {"collect_seconds": 0.0, "update_seconds": 0.0, "batches": 0}  # this process only
         self.logger = None
-        # the update's torch threads: torch_threads, or the cores the collector workers leave
+        # the update's torch threads: torch_threads, every core (0), or the cores the workers leave (null)
         cores, workers = os.cpu_count() or 1, int(cfg.collector.workers)
-        self.update_threads = int(cfg.torch_threads or max(1, cores - workers))
+        threads = cfg.torch_threads
+        self.update_threads = max(1, cores - workers) if threads is None else int(threads or cores)
         self.stopped_early = False  # collector.stop_at_success was met
         self.paused = False  # checkpoint.pause_at_frames was reached
         self.collecting_since = time.time()  # unix seconds: start-up ends when collection starts (learn)

@@ -87,6 +87,19 @@ def test_validate_names_the_key():
         validate(cfg)
 
 
+@pytest.mark.parametrize(
+    ("override", "allowed"),
+    [("loss.implementation=autograd", "'bfc' or 'torchrl'"), ("torch_threads=-1", "0 \\(every core\\) or >= 1")],
+)
+def test_validate_names_what_a_key_allows(override, allowed):
+    with pytest.raises(ValueError, match=allowed):
+        validate(compose_cfg([override]))
+
+
+def test_the_paper_preset_gives_its_update_every_core():
+    assert compose_cfg(["+preset=paper"]).torch_threads == 0 and compose_cfg([]).torch_threads is None
+
+
 def run_cli(*args):
     return subprocess.run(
         [sys.executable, "train.py", *args, "hydra.run.dir=/tmp/bfc-test-cli"],
@@ -204,6 +217,7 @@ PAPER_PRESETS = {
         "optim.anneal_lr": True,
         "optim.max_grad_norm": 0.5,
         "optim.adam_eps": 1e-5,
+        "torch_threads": 0,  # bfc's, not the paper's: how the machine is used, not what is learned
     },
     "paper_trpo": {  # trpo_mpi/defaults.py mujoco(), trpo_mpi.py learn()
         "algo.name": "trpo",

@@ -1,0 +1,159 @@
+"""bfc's PPO step (its gradients written out) against TorchRL's ClipPPOLoss, autograd and torch's
+Adam on the same minibatch: the same values and gradients to float rounding."""
+
+import pytest
+import torch
+from torchrl.objectives import ClipPPOLoss
+
+from bfc.agent import PolicySpec, make_critic, torchrl_actor
+from bfc.config import compose
+from bfc.factory import make_env
+from bfc.training.advantage import compute_advantage
+from bfc.training.ppo import PPO, make_loss
+from bfc.training.ppo_step import PPOStep
+
+# The bound: each gradient within 1e-5 of its parameter's largest |gradient|. Not bit for bit: the
+# surrogate's gradient is formed in one expression where autograd chains five, the entropy's is
+# added in another order, and tanh is 2 sigmoid(2z) - 1 (torch's tanh to 2e-7).
+RELATIVE = 1e-5
+
+CASES = {
+    "default": [],
+    "paper": ["+preset=paper"],  # tanh, 2 x 256, observation statistics, value clipping
+    "elu, smooth_l1, capped std": ["model.activation=elu", "loss.critic_loss=smooth_l1", "model.max_std=0.3"],
+    "l1, no entropy, clipped value": ["loss.critic_loss=l1", "loss.entropy_coeff=0", "loss.clip_value=0.002"],
+}
+
+
+def _batch(overrides):
+    """A minibatch the networks have moved away from since it was collected (ratios away from 1,
+    some clipped; values away from the collected ones), with its ClipPPOLoss."""
+    cfg = compose(overrides)
+    env = make_env(cfg, num_envs=16, seed=0)
+    spec = PolicySpec.from_config(cfg)
+    net = spec.make_net()
+    critic = make_critic(spec.observation_size, cfg.model.critic_hidden, cfg.model.activation, net.obs_norm)
+    actor = torchrl_actor(net, env.action_spec)
+    torch.manual_seed(0)
+    with torch.no_grad():
+        net.log_std.copy_(torch.tensor([-1.5, -1.0, -2.0, -1.2]))  # with max_std 0.3: one capped, one at the cap
+        data = env.rollout(40, actor, break_when_any_done=False)
+        if net.obs_norm is not None:
+            net.obs_norm.update(data["observation"])
+        for p in [*actor.parameters(), *critic.parameters()]:
+            p.add_(0.02 * torch.randn_like(p))
+    env.close()
+    loss, advantage = make_loss(cfg, actor, critic)
+    compute_advantage(data, advantage)
+    flat = data.reshape(-1)
+    with torch.no_grad():
+        flat["state_value"] = flat["state_value"] + 0.01 * torch.randn_like(flat["state_value"])
+    return cfg, net, actor, critic, loss, flat
+
+
+def _columns(step, flat):
+    old_value = [flat["state_value"]] if step.clip_value is not None else []
+    obs = step.observe(flat["observation"])
+    return obs, flat["action"], flat["action_log_prob"], flat["advantage"], flat["value_target"], *old_value
+
+
+@pytest.mark.parametrize("case", CASES)
+def test_the_step_gives_clip_ppo_losss_values_and_gradients(case):
+    cfg, _, actor, critic, loss, flat = _batch(CASES[case])
+    reference = loss(flat)
+    assert 0 < float(reference["clip_fraction"]) < 1
+    total = reference["loss_objective"] + reference["loss_critic"] + reference.get("loss_entropy", 0.0)
+    loss.zero_grad()
+    total.backward()
+    expected = {id(p): p.grad.clone() for p in loss.parameters()}
+    before = [p.detach().clone() for p in loss.parameters()]
+
+    step = PPOStep(loss, actor, critic, lr=0.0, adam_eps=1e-8, max_grad_norm=1e9)  # lr 0: read the gradient
+    assert all(torch.equal(a, p) for a, p in zip(before, loss.parameters(), strict=True))  # moved, not changed
+    metrics = dict(zip(PPOStep.METRICS, step(*_columns(step, flat)), strict=True))
+    for key, value in metrics.items():
+        torch.testing.assert_close(value, reference[key].detach().reshape(()), rtol=1e-5, atol=1e-7, msg=key)
+    start = 0
+    for p in step.params:
+        grad = step.flat.grad[start : start + p.numel()].view_as(p)
+        want = expected[id(p)]
+        assert (grad - want).abs().max() <= RELATIVE * want.abs().max(), tuple(p.shape)
+        start += p.numel()
+
+
+def test_a_step_moves_the_weights_as_torchs_adam_after_clipping():
+    """One step at the default's rate and clipping: the weights land where torch's Adam puts them
+    with ClipPPOLoss's gradients clipped by clip_grad_norm_."""
+    cfg, _, actor, critic, loss, flat = _batch([])
+    params = list(loss.parameters())
+    reference = [p.detach().clone().requires_grad_() for p in params]
+    out = loss(flat)
+    total = out["loss_objective"] + out["loss_critic"] + out["loss_entropy"]
+    grads = torch.autograd.grad(total, params)
+    for r, g in zip(reference, grads, strict=True):
+        r.grad = g.clone()
+    norm = torch.nn.utils.clip_grad_norm_(reference, 0.05)
+    assert norm > 0.05  # the clipping acts
+    torch.optim.Adam(reference, lr=1e-3, eps=1e-8).step()
+
+    step = PPOStep(loss, actor, critic, lr=1e-3, adam_eps=1e-8, max_grad_norm=0.05)
+    step(*_columns(step, flat))
+    for p, r in zip(params, reference, strict=True):
+        torch.testing.assert_close(p.detach(), r.detach(), rtol=0, atol=1e-6)
+
+
+def test_the_parameters_stay_the_networks_and_the_flat_buffers_views():
+    """After the step is built the actor and critic still hold their Parameters (the collector,
+    the policy file and ClipPPOLoss see the trained weights), now views of one buffer."""
+    _, net, actor, critic, loss, flat = _batch([])
+    objects = [id(p) for p in net.parameters()]
+    step = PPOStep(loss, actor, critic, lr=1e-3, adam_eps=1e-8, max_grad_norm=1.0)
+    assert [id(p) for p in net.parameters()] == objects
+    before = net.mlp[0].weight.detach().clone()
+    step(*_columns(step, flat))
+    assert not torch.equal(net.mlp[0].weight, before)
+    assert net.mlp[0].weight.data_ptr() >= step.flat.data_ptr()
+    state = net.state_dict()
+    assert torch.equal(state["mlp.0.weight"], net.mlp[0].weight)
+
+
+def test_an_optimizer_state_from_before_loads_into_the_flat_adam():
+    """A checkpoint written by torch's Adam over the parameters one by one (before this step)
+    resumes: its moments, concatenated in the loss module's order, and its step count."""
+    cfg, _, actor, critic, loss, flat = _batch([])
+    params = list(loss.parameters())
+    old = torch.optim.Adam(params, lr=1e-3)
+    for p in params:
+        p.grad = torch.randn_like(p)
+    old.step()
+    state = old.state_dict()
+    step = PPOStep(loss, actor, critic, lr=1e-3, adam_eps=1e-8, max_grad_norm=1.0)
+    step.load_state_dict(state)
+    loaded = step.optimizer.state[step.flat]
+    assert float(loaded["step"]) == 1.0
+    assert torch.equal(loaded["exp_avg"], torch.cat([old.state[p]["exp_avg"].reshape(-1) for p in params]))
+    assert torch.equal(loaded["exp_avg_sq"], torch.cat([old.state[p]["exp_avg_sq"].reshape(-1) for p in params]))
+
+
+def test_what_the_step_does_not_compute_is_refused_naming_torchrls_loss():
+    cfg, net, actor, critic, _, _ = _batch([])
+    separate = ClipPPOLoss(actor, critic, separate_losses=True, normalize_advantage=True)
+    with pytest.raises(ValueError, match="separate_losses; use loss.implementation=torchrl"):
+        PPOStep(separate, actor, critic, 1e-3, 1e-8, 1.0)
+    net.mlp[1] = torch.nn.Sigmoid()  # an activation it has no backward for
+    with pytest.raises(ValueError, match="tanh, relu or elu; use loss.implementation=torchrl"):
+        PPOStep(ClipPPOLoss(actor, critic, normalize_advantage=True), actor, critic, 1e-3, 1e-8, 1.0)
+
+
+@pytest.mark.parametrize("implementation", ["bfc", "torchrl"])
+def test_both_implementations_update_and_report_the_same_metrics(implementation):
+    """`loss.implementation` picks the step; both train the networks and log the same tags."""
+    cfg, net, actor, critic, _, flat = _batch([f"loss.implementation={implementation}"])
+    learner = PPO(cfg, actor, critic)
+    assert (learner.step is not None) == (implementation == "bfc")
+    before = net.mlp[0].weight.detach().clone()
+    data = flat.exclude("advantage", "value_target").reshape(16, -1)
+    metrics = learner.update(data)
+    assert set(metrics) == {"loss/objective", "loss/critic", "loss/entropy", "loss/approx_kl", "loss/clip_fraction"}
+    assert all(torch.isfinite(torch.tensor(v)) for v in metrics.values())
+    assert not torch.equal(net.mlp[0].weight, before)
