@@ -2,7 +2,7 @@
 
 `GaussianActor` maps an observation to the mean of a diagonal Gaussian over the four motor
 actions and holds a learned, state-independent std per motor. Its `sample`, `log_prob`,
-`entropy` and `kl` are the only Gaussian arithmetic in bfc: PPO's fused loss, TRPO, DDPG's
+`entropy` and `kl` are the only Gaussian arithmetic in bfc: PPO's step, TRPO, DDPG's
 exploration, the collectors and the exports all call them. TorchRL's `ProbabilisticActor`
 (`torchrl_actor`) wraps the same module for TorchRL's losses and collector; `gaussian_net` is the
 one place that knows how it is nested.

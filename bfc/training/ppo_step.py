@@ -16,13 +16,11 @@ TorchRL's module.
 
 from __future__ import annotations
 
-import math
-
 import torch
 from torch import nn
 from torchrl.modules import MLP
 
-from bfc.agent import gaussian_net
+from bfc.agent import GaussianActor, gaussian_net
 from bfc.agent.normalization import Normalized
 
 # a hidden layer, activation(x W^T + b), in place on the product; tanh as 2 sigmoid(2z) - 1 (the
@@ -152,7 +150,6 @@ class PPOStep:
         self.actor = _Dense(net.mlp, lambda p: slots[id(p)])
         self.critic = _Dense(value, lambda p: slots[id(p)])
         self.optimizer = torch.optim.Adam([self.flat], lr=lr, eps=adam_eps, fused=True)
-        self.log_2pi_half = 0.5 * math.log(2 * math.pi)
 
     def observe(self, obs: torch.Tensor) -> torch.Tensor:
         """What both networks read: the observation, through the statistics when it has them
@@ -173,8 +170,9 @@ class PPOStep:
         if self.squash:
             loc = loc.tanh()
         log_std = self.log_std if self.max_log_std is None else self.log_std.clamp(max=self.max_log_std)
-        z = (action - loc) / log_std.exp()
-        log_prob = (-0.5 * z.square() - log_std - self.log_2pi_half).sum(-1)
+        scale = log_std.exp()
+        log_prob = GaussianActor.log_prob(action, loc, scale)
+        z = (action - loc) / scale  # d log_prob / d loc = z / scale; d log_prob / d log_std = z^2 - 1
         log_weight = log_prob - old_log_prob
         clipped = log_weight.clamp(self.low, self.high)
         ratio_gain = log_weight.exp() * advantage
@@ -182,7 +180,7 @@ class PPOStep:
         unclipped = ratio_gain <= clipped_gain  # where the minimum is the unclipped term
         # d loss / d log_prob = -advantage * ratio / n where the unclipped term is taken, else 0
         grad_log_prob = torch.where(unclipped, ratio_gain, 0.0).mul_(-1.0 / n).unsqueeze(-1)
-        grad_loc = grad_log_prob * z / log_std.exp()
+        grad_loc = grad_log_prob * z / scale
         if self.squash:
             grad_loc = grad_loc * (1 - loc.square())
         grad_log_std = (grad_log_prob * (z.square() - 1)).sum(0) - self.entropy_coeff
@@ -208,7 +206,7 @@ class PPOStep:
         norm = grad.norm()
         grad.mul_((self.max_grad_norm / (norm + 1e-6)).clamp_(max=1.0))
         self.optimizer.step()
-        entropy = (0.5 + self.log_2pi_half + log_std).sum()
+        entropy = GaussianActor.entropy(scale)
         return torch.stack(
             (
                 -torch.minimum(ratio_gain, clipped_gain).mean(),
