@@ -97,7 +97,9 @@ def test_validate_names_what_a_key_allows(override, allowed):
 
 
 def test_the_paper_preset_gives_its_update_every_core():
-    assert compose_cfg(["+preset=paper"]).torch_threads == 0 and compose_cfg([]).torch_threads is None
+    """It collects in the learner's process, so the update's threads (null) are every core."""
+    paper, default = compose_cfg(["+preset=paper"]), compose_cfg([])
+    assert paper.collector.workers == 0 and paper.torch_threads is None and default.collector.workers == 1
 
 
 def run_cli(*args):
@@ -217,7 +219,7 @@ PAPER_PRESETS = {
         "optim.anneal_lr": True,
         "optim.max_grad_norm": 0.5,
         "optim.adam_eps": 1e-5,
-        "torch_threads": 0,  # bfc's, not the paper's: how the machine is used, not what is learned
+        "collector.workers": 0,  # on-policy, as Baselines; the update gets every core (bfc's choice)
     },
     "paper_trpo": {  # trpo_mpi/defaults.py mujoco(), trpo_mpi.py learn()
         "algo.name": "trpo",
