@@ -14,7 +14,7 @@ import json
 from pathlib import Path
 
 from bfc.config import TestProtocolConfig
-from bfc.evaluation.report import fly_final_policies, mean_spread, read_runs, runs_sections
+from bfc.evaluation.report import KEPT_SCALARS, fly_final_policies, mean_spread, read_runs, runs_sections, tb_scalars
 
 # The paper's Table 2 (success out of 100, mean over its seeds) and figs. 5-10 for the rest.
 PAPER_TABLE2 = {"jd_css_tdts": 90.5, "jd_css": 67.0, "jd_tdts": 25.0, "jd": 16.0}
@@ -139,6 +139,42 @@ CLAIM_RULES = (
     "part when some learn. Runs paused on the way are judged as far as they went. The paper's regime: the "
     "runs of this report; bfc's regime: docs/report/table2 and docs/report/algos (2M frames, three seeds)."
 )
+
+
+KEPT_FILES = ("summary.json", "config.yaml", "policy_last.pt")  # plus KEPT_SCALARS, from the events
+KEPT_TAGS = ("train/episode_return",)
+
+
+def keep_finished_runs(sweep_dirs, runs_dir) -> list[Path]:
+    """Copy what the report reads of every finished run under `sweep_dirs` (its summary with the
+    validation curve, its config, its final policy, its episode returns) to
+    `runs_dir`/<variant>_seed<k>[_<algo>]/, so that the report rebuilds on a clone without the
+    runs' folders. A paused run is left where it is (its checkpoint goes on there). Returns the
+    directories written."""
+    import shutil
+
+    import yaml
+
+    kept = []
+    for summary in sorted(p for d in sweep_dirs for p in Path(d).rglob("summary.json")):
+        run = summary.parent
+        if json.loads(summary.read_text()).get("paused") or not all((run / f).is_file() for f in KEPT_FILES):
+            continue
+        cfg = yaml.safe_load((run / "config.yaml").read_text())
+        algo = (cfg.get("algo") or {}).get("name", "ppo")
+        name = f"{cfg.get('variant')}_seed{cfg['seed']}" + ("" if algo == "ppo" else f"_{algo}")
+        dest = Path(runs_dir) / name
+        dest.mkdir(parents=True, exist_ok=True)
+        for f in KEPT_FILES:
+            shutil.copyfile(run / f, dest / f)
+        scalars = {tag: _pairs(*tb_scalars(run, tag)) for tag in KEPT_TAGS}
+        (dest / KEPT_SCALARS).write_text(json.dumps(scalars))
+        kept.append(dest)
+    return kept
+
+
+def _pairs(frames, values) -> list[list[float]]:
+    return [[int(f), round(float(v), 6)] for f, v in zip(frames.tolist(), values.tolist(), strict=True)]
 
 
 def write_regime_report(

@@ -220,10 +220,19 @@ def _noise_figure(rows, path):
     fig.savefig(path, dpi=110)
 
 
-def _tb_scalars(run_dir: Path, tag: str) -> tuple[torch.Tensor, torch.Tensor]:
-    """(frames, values) of one scalar tag from a run's TensorBoard events."""
+KEPT_SCALARS = "scalars.json"  # {tag: [[frames, value], ...]}: a kept run's curves without its events
+
+
+def tb_scalars(run_dir: Path, tag: str) -> tuple[torch.Tensor, torch.Tensor]:
+    """(frames, values) of one scalar tag from a run's TensorBoard events (or, for a run kept in
+    the repository without them, its KEPT_SCALARS file)."""
     from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
+    kept = run_dir / KEPT_SCALARS
+    if kept.is_file():
+        pairs = json.loads(kept.read_text()).get(tag, [])
+        values = torch.tensor(pairs, dtype=torch.float64).reshape(-1, 2)
+        return values[:, 0], values[:, 1].float()
     if not (run_dir / "tb").is_dir():  # a run with logger.tensorboard=false
         return torch.zeros(0), torch.zeros(0)
     acc = EventAccumulator(str(run_dir / "tb"), size_guidance={"scalars": 0})
@@ -371,7 +380,7 @@ def runs_sections(runs_dir, out: Path, protocol: TestProtocolConfig | None = Non
         _plot_band(axes[0, 1], minutes, history["eval/success_rate"], variant)
         _plot_band(axes[1, 0], frames, history["eval/hover_error"], variant)
         _plot_band(axes[1, 1], frames, history["eval/attitude_error"], variant)
-        returns = [_tb_scalars(r["dir"], "train/episode_return") for r in runs]
+        returns = [tb_scalars(r["dir"], "train/episode_return") for r in runs]
         steps = returns[0][0] / 1e6
         _plot_band(axes[0, 2], steps, [v for _, v in returns], variant)
         _plot_band(axes[1, 2], steps, [v.cumsum(0) for _, v in returns], variant)

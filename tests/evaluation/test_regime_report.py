@@ -88,3 +88,35 @@ def test_each_claims_verdict_follows_its_rule():
     trpo = {"jd_css_tdts": 0.9, "trpo jd_css_tdts": 0.95, "ppo": 0.0, "trpo ppo": 0.8}
     assert verdicts(trpo)[2:] == ["does not hold", "holds in part"]
     assert verdicts({"jd": 0.9}) == ["not measured"] * 4
+
+
+def test_finished_runs_are_kept_and_the_report_rebuilds_from_them_alone(tmp_path):
+    """What the report reads of each finished run is copied into the repository (its summary and
+    validation curve, config, final policy, episode returns from its TensorBoard events); a paused
+    run stays in its sweep; with the sweep gone the report is written from the kept runs."""
+    import shutil
+
+    from torch.utils.tensorboard import SummaryWriter
+
+    from bfc.evaluation.regime import keep_finished_runs
+
+    sweep = tmp_path / "multirun" / "paper_regime"
+    _fake_run(sweep / "jd_css_tdts" / "seed0_0", "jd_css_tdts", 0, SHIPPED, 1.0, 1_000_000)
+    _fake_run(sweep / "ppo" / "seed0_1", "ppo", 0, SHIPPED, 1.0, None)
+    paused = sweep / "ppo" / "seed0_1" / "summary.json"
+    paused.write_text(json.dumps({**json.loads(paused.read_text()), "paused": True}))
+    with SummaryWriter(str(sweep / "jd_css_tdts" / "seed0_0" / "tb")) as writer:
+        for frames, value in ((8192, -3.0), (16384, -1.5)):
+            writer.add_scalar("train/episode_return", value, frames)
+    kept = keep_finished_runs([sweep], tmp_path / "runs")
+    assert [k.name for k in kept] == ["jd_css_tdts_seed0"]
+    run = kept[0]
+    assert sorted(p.name for p in run.iterdir()) == ["config.yaml", "policy_last.pt", "scalars.json", "summary.json"]
+    assert json.loads((run / "scalars.json").read_text()) == {"train/episode_return": [[8192, -3.0], [16384, -1.5]]}
+    assert json.loads((run / "summary.json").read_text())["history"][-1]["frames"] == 2_000_000
+
+    shutil.rmtree(tmp_path / "multirun")
+    protocol = Protocol(num_starts=4, seconds=3.0)
+    report = write_regime_report([tmp_path / "runs"], tmp_path / "out", protocol=protocol).read_text()
+    assert "1 runs, 2.0M frames" in report and "| jd_css_tdts | 0 | 2,000,000 | 2,000,000 | finished |" in report
+    assert (tmp_path / "out" / "learning_curves.png").stat().st_size > 10_000
