@@ -2,12 +2,13 @@
 critic's MLPs, ClipPPOLoss's clipped surrogate, critic and entropy terms, their backward, the
 gradient clipping and Adam, as plain tensor operations over one flat parameter buffer.
 
-Why: at bfc's sizes (two hidden layers of 128-256, minibatches of 256-512) autograd's graph and
-the per-parameter optimizer cost more than the matrix products (bench/update_time.py): the step
-here runs the products and a few dozen fused elementwise kernels, nothing else. It gives
-ClipPPOLoss's gradients on the same minibatch to float rounding (tests/training/test_ppo_step.py;
-not bit for bit: the gradient of the surrogate is formed in one expression where autograd chains
-five, and the entropy term's gradient is added in another order).
+Why: at bfc's sizes (two hidden layers of 128-256, minibatches of 256-512) autograd's graph, the
+per-parameter optimizer and torch's CPU tanh cost half as much again as the matrix products
+(bench/update_time.py): the step here runs the products (now about 70% of it) and a few dozen
+elementwise kernels. It gives ClipPPOLoss's gradients on the same minibatch to float rounding
+(tests/training/test_ppo_step.py; not bit for bit: the surrogate's gradient is formed in one
+expression where autograd chains five, the entropy's is added in another order, and tanh is
+2 sigmoid(2z) - 1).
 
 It knows the networks bfc builds (`GaussianActor` over TorchRL's MLP, the critic's MLP, the
 shared observation statistics); `loss.implementation=torchrl` trains any other through
