@@ -211,7 +211,7 @@ class LossConfig:
 
     kind: str = "clip"  # clip (ClipPPOLoss, eq. 11) | kl (KLPENPPOLoss, adaptive beta, eq. 12)
     # bfc: the clipped loss's step with its gradients written out (ClipPPOLoss's to float rounding,
-    # 2-3x faster: bfc.training.ppo_step) | torchrl: ClipPPOLoss, autograd and torch's Adam (any
+    # 0.7x its update time on one thread: bfc.training.ppo_step) | torchrl: ClipPPOLoss, autograd and torch's Adam (any
     # network; the KL-penalty loss always runs TorchRL's module)
     implementation: str = "bfc"
     gamma: float = 0.99  # a 1 s horizon at 100 Hz; use 0.996 (and lmbda 0.98) at 250 Hz
@@ -348,8 +348,8 @@ class Config:
     # seconds_to_0.905 (training wall-clock to the paper's success rate; NaN if never reached)
     sweep_objective: str = "final_success_rate"
     # torch threads for the update; null: the cores the collector workers leave (2 on 2 cores with
-    # collector.workers=0, 1 with the default workers=1); 0: every core (a run whose update dwarfs
-    # its collection, as the paper presets': the worker's share of a core is short)
+    # collector.workers=0, 1 with the default workers=1); 0: every core (for a run with a worker
+    # whose update dwarfs its collection: the worker's share of a core is short)
     torch_threads: int | None = None
     env: EnvConfig = field(default_factory=EnvConfig)
     jd: JDConfig = field(default_factory=JDConfig)
