@@ -20,6 +20,7 @@ from __future__ import annotations
 import torch
 from torch import nn
 from torchrl.modules import MLP
+from torchrl.objectives.utils import distance_loss
 
 from bfc.agent import GaussianActor, gaussian_net
 from bfc.agent.normalization import Normalized
@@ -71,23 +72,14 @@ class _Dense:
 
 
 def _distance_grad(kind: str, pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
-    """d distance_loss(target, pred, kind) / d pred (TorchRL's l2, l1 and smooth_l1 with beta 1)."""
+    """d distance_loss(target, pred, kind) / d pred: TorchRL's l2, l1 and smooth_l1 (beta 1),
+    whose values the step takes from `distance_loss` itself."""
     diff = pred - target
     if kind == "l2":
         return 2 * diff
     if kind == "l1":
         return diff.sign()
     return diff.clamp(-1.0, 1.0)
-
-
-def _distance(kind: str, pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
-    diff = pred - target
-    if kind == "l2":
-        return diff.square()
-    if kind == "l1":
-        return diff.abs()
-    a = diff.abs()
-    return torch.where(a < 1.0, 0.5 * diff.square(), a - 0.5)
 
 
 class PPOStep:
@@ -191,12 +183,12 @@ class PPOStep:
         self.actor.backward(grad_loc, actor_inputs)
         # the critic
         value, critic_inputs = self.critic.forward(obs)
-        critic = _distance(self.critic_loss, value, value_target)
+        critic = distance_loss(value_target, value, self.critic_loss)
         grad_value = _distance_grad(self.critic_loss, value, value_target)
         if self.clip_value is not None:  # ClipPPOLoss's clip_value: the more pessimistic of the two
             moved = value - old_value
             near = old_value + moved.clamp(-self.clip_value, self.clip_value)
-            critic_near = _distance(self.critic_loss, near, value_target)
+            critic_near = distance_loss(value_target, near, self.critic_loss)
             grad_near = _distance_grad(self.critic_loss, near, value_target) * (moved.abs() <= self.clip_value)
             take_near = critic_near > critic
             critic = torch.maximum(critic, critic_near)
