@@ -14,7 +14,15 @@ import json
 from pathlib import Path
 
 from bfc.config import TestProtocolConfig
-from bfc.evaluation.report import KEPT_SCALARS, fly_final_policies, mean_spread, read_runs, runs_sections, tb_scalars
+from bfc.evaluation.report import (
+    KEPT_SCALARS,
+    fly_final_policies,
+    mean_spread,
+    read_runs,
+    run_algo_and_variant,
+    runs_sections,
+    tb_scalars,
+)
 
 # The paper's Table 2 (success out of 100, mean over its seeds) and figs. 5-10 for the rest.
 PAPER_TABLE2 = {"jd_css_tdts": 90.5, "jd_css": 67.0, "jd_tdts": 25.0, "jd": 16.0}
@@ -161,8 +169,8 @@ def keep_finished_runs(sweep_dirs, runs_dir) -> list[Path]:
         if json.loads(summary.read_text()).get("paused") or not all((run / f).is_file() for f in KEPT_FILES):
             continue
         cfg = yaml.safe_load((run / "config.yaml").read_text())
-        algo = (cfg.get("algo") or {}).get("name", "ppo")
-        name = f"{cfg.get('variant')}_seed{cfg['seed']}" + ("" if algo == "ppo" else f"_{algo}")
+        algo, variant = run_algo_and_variant(cfg)
+        name = f"{variant}_seed{cfg['seed']}" + ("" if algo == "ppo" else f"_{algo}")
         dest = Path(runs_dir) / name
         dest.mkdir(parents=True, exist_ok=True)
         for f in KEPT_FILES:

@@ -258,6 +258,11 @@ PAPER_ORDER = ("ppo", "jd", "css", "tdts", "jd_css", "jd_tdts", "css_tdts", "jd_
 TABLE2_STARTS = {"protocol": "protocol", "ground": "take-off (ground)", "any": "any attitude"}
 
 
+def run_algo_and_variant(cfg: dict) -> tuple[str, str]:
+    """(algo.name, variant) of a run from its saved config.yaml (PPO when it names none)."""
+    return (cfg.get("algo") or {}).get("name", "ppo"), cfg.get("variant") or "?"
+
+
 def read_runs(*runs_dirs: Path) -> dict[str, list[dict]]:
     """{row label: [run, ...]} for every run (`summary.json` + `config.yaml`) below the `runs_dirs`;
     PPO rows keep the variant's name, other algorithms are prefixed with theirs; paper order."""
@@ -266,8 +271,7 @@ def read_runs(*runs_dirs: Path) -> dict[str, list[dict]]:
     by_variant: dict[str, list[dict]] = {}
     for summary_path in sorted(p for d in runs_dirs for p in Path(d).rglob("summary.json")):
         cfg = yaml.safe_load((summary_path.parent / "config.yaml").read_text())
-        algo = (cfg.get("algo") or {}).get("name", "ppo")
-        variant = cfg.get("variant") or "?"
+        algo, variant = run_algo_and_variant(cfg)
         label = variant if algo == "ppo" else f"{algo} {variant}"
         by_variant.setdefault(label, []).append(
             {
