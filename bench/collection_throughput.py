@@ -8,7 +8,7 @@ Each row collects `--batches` batches of `--steps` steps per env with the config
 training stack: TDTS, JD, CSS, the policy's maps, episode statistics) and the policy's weights
 (`--policy`; a trained policy flies long episodes, as mid-training collection does), one torch
 thread, MuJoCo's threads as the config says: "fused" is `collector.kind=fused` (the default),
-"torchrl" TorchRL's `Collector` (the same batches bit for bit: tests/collectors/test_fused.py).
+"torchrl" TorchRL's `Collector` (the same batches bit for bit: tests/test_pipeline.py).
 "raw MuJoCo" is one threaded `mujoco.rollout` call per control step of the same model and env
 count, held at hover in the air (no motor model, observation, reward, reset or policy). Shared
 cloud cores change speed from one second to the next, so the rows are measured in alternating

@@ -6,10 +6,10 @@ the deterministic policy, the judge).
 
 Prints the median over rounds (shared cloud cores change speed from one second to the next) and
 raw MuJoCo's time for the same physics (100 bodies, the policy's control rate, 10 s, in-air hover):
-the floor under any evaluation of this length. Three, in alternating rounds: the lean loop
+the floor under any evaluation of this length. Three, in alternating rounds: the pipeline
 (`run_flights`' default) on the training step (what training's validation flies, eval.physics_dt
 null) and on the reference 0.002 s step (evaluate.py's test flights), and TorchRL's `env.step` on
-the reference step (the lean loop's flights, bit for bit).
+the reference step (the pipeline's flights, bit for bit).
 """
 
 from __future__ import annotations
@@ -53,9 +53,9 @@ def main() -> None:
     )
     reference = OmegaConf.merge(cfg, {"eval": {"physics_dt": REFERENCE_PHYSICS_DT}})
     evaluators = {
-        "lean, training step (in-training validation)": ProtocolEvaluator(cfg),
-        f"lean, reference {REFERENCE_PHYSICS_DT} s (evaluate.py)": ProtocolEvaluator(reference),
-        f"TorchRL env.step, reference {REFERENCE_PHYSICS_DT} s": ProtocolEvaluator(reference, lean=False),
+        "pipeline, training step (in-training validation)": ProtocolEvaluator(cfg),
+        f"pipeline, reference {REFERENCE_PHYSICS_DT} s (evaluate.py)": ProtocolEvaluator(reference),
+        f"TorchRL env.step, reference {REFERENCE_PHYSICS_DT} s": ProtocolEvaluator(reference, torchrl=True),
     }
     times, success = {name: [] for name in evaluators}, {}
     for ev in evaluators.values():

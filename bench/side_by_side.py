@@ -5,7 +5,8 @@ after figures a change is judged by (machines and hours differ; the ratio is wha
 
 Each commit is checked out once into a temporary git worktree (its own bench/ and bfc/, the
 repository's .venv); the script then runs there `--rounds` times, before and after in turn,
-and each run's output is printed under a header naming the commit.
+and each run's output is printed under a header naming the commit. A script the before commit
+does not have yet is taken from the after commit (it runs in, and imports, the before tree).
 """
 
 from __future__ import annotations
@@ -43,7 +44,10 @@ def main() -> None:
                     short = ["git", "rev-parse", "--short", "HEAD"]
                     head = subprocess.run(short, cwd=tree, text=True, capture_output=True)
                     print(f"\n## {rev} ({head.stdout.strip()}), round {round_ + 1}", flush=True)
-                    command = [sys.executable, str(tree / "bench" / args.script), *args.args]
+                    script = tree / "bench" / args.script
+                    if not script.exists():  # a script newer than the commit: the after tree's, run on this one
+                        script = trees[args.after] / "bench" / args.script
+                    command = [sys.executable, str(script), *args.args]
                     subprocess.run(command, cwd=tree, env={**os.environ, "PYTHONPATH": str(tree)}, check=True)
         finally:
             for tree in trees.values():

@@ -323,6 +323,9 @@ class EvalConfig(ProtocolConfig):
     # MuJoCo's step for the validation flights; null: the training step (env.physics_dt). evaluate.py's
     # test flights always fly the reference 0.002 s (bfc.envs.REFERENCE_PHYSICS_DT)
     physics_dt: float | None = None
+    # fly the validation flights in a process of their own while training goes on (the same
+    # history and policy.pt; in place anyway with collector.stop_at_success or logger.video)
+    background: bool = True
 
 
 @dataclass

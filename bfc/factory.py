@@ -5,6 +5,9 @@ Train, evaluate, notebooks and tests all build envs here. Order matters and is f
     TDTS (before CSS, whose episode bookkeeping must see TDTS's done) -> JD -> CSS -> given starts
     -> odometry noise -> latency (odometry, then commands) -> policy observation -> motor-speed action
     -> episode statistics (training).
+This stack is the one written order of a control step: TorchRL's `env.step` walks it through the
+transforms' hooks, and bfc.transforms.pipeline reads it into the list of stages the collector,
+the flights and RotorPy run.
 The policy's observation and action maps come from a PolicySpec (bfc.agent): the config's in
 training, a policy file's in a flight.
 """

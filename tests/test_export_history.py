@@ -17,16 +17,16 @@ K = 3
 def test_the_history_shifts_in_the_previous_action_and_restarts_at_hover():
     obs_map = PolicyObservation(3, 800.0, command_history=K)
     odometry, goal = torch.zeros(3, 18), torch.zeros(3, 3)
-    assert obs_map.restart(torch.ones(3, dtype=torch.bool), odometry, goal).shape == (3, 22 + 4 * K)
+    assert obs_map.observe_restart(torch.ones(3, dtype=torch.bool), odometry, goal).shape == (3, 22 + 4 * K)
     actions = []
     for i in range(4):
         command = torch.full((3, 4), 800.0 * (1 + 0.1 * (i + 1)))
-        obs = obs_map.advance(command, odometry, goal)
+        obs = obs_map.observe_step(command, odometry, goal)
         actions.append(command[0, 0] / 800.0 - 1)
     # newest first: the previous action at 18:22, then the three before it
     expected = torch.stack([actions[3], actions[2], actions[1], actions[0]]).repeat_interleave(4)
     torch.testing.assert_close(obs[0, 18:], expected)
-    obs = obs_map.restart(torch.tensor([True, False, False]), odometry, goal)
+    obs = obs_map.observe_restart(torch.tensor([True, False, False]), odometry, goal)
     assert (obs[0, 18:] == 0).all() and (obs[1, 18:] == obs[2, 18:]).all() and obs[1, 18:].abs().min() > 0
 
 

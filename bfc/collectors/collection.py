@@ -10,19 +10,15 @@ for checkpoints, `close()`.
 
 from __future__ import annotations
 
-import contextlib
-import os
-import pickle
-import traceback
-
 import torch
 from omegaconf import OmegaConf
 from tensordict import TensorDict
 
 from bfc.collectors.collector import make_collector
 from bfc.collectors.curriculum import Curriculum
+from bfc.collectors.process import ChildProcess, dumps, loads, report_error
 from bfc.factory import find_transform, make_env
-from bfc.lifetime import WorkerDied, bind_to_parent, death_cause
+from bfc.lifetime import bind_to_parent
 from bfc.transforms import (
     ActionDelay,
     ControlledStartingState,
@@ -216,111 +212,23 @@ def _merge(stats: list[dict]) -> dict:
     return out
 
 
-class _Worker:
-    """One collector process, seen from the learner: a pipe each way (a socket pair; its far end
-    closed here, so a dead worker reads as end-of-file, never as a wait), the process, and the
-    batches received early. Messages are plain pickles of numpy arrays: copies through the pipe,
-    no shared-memory segment per batch and no file descriptor passed between the processes."""
+class _Worker(ChildProcess):
+    """One collector process, seen from the learner (batches received before a reply that was
+    asked for are kept, in order, in `pending`)."""
 
     def __init__(self, ctx, index: int):
-        self.ctx, self.index = ctx, index
-        self.conn, self.process, self.resume = None, None, None
-        self.pending: list = []  # batches received but not yet handed out
+        super().__init__(ctx, f"bfc-collector-{index}", f"collector worker {index}")
+        self.index, self.resume = index, None
 
     def start(self, cfg: dict, slots, total_frames: int) -> None:
-        self.conn, far = self.ctx.Pipe(duplex=True)
-        name = f"bfc-collector-{self.index}"
-        args = (cfg, slots, far, self.conn, total_frames, self.resume, os.getpid(), name)
-        self.process = self.ctx.Process(target=_work, args=args, daemon=True, name=name)
-        self.process.start()
-        far.close()  # the worker holds the only copy: its death closes the pipe
-
-    def send(self, *message) -> None:
-        try:
-            self.conn.send_bytes(_dumps(message))
-        except OSError:  # a broken pipe: the worker is gone
-            raise self._died() from None
-
-    def receive(self, kind: str):
-        if kind == "batch" and self.pending:
-            return self.pending.pop(0)
-        while True:
-            try:
-                if not self.conn.poll(1.0):
-                    if not self.process.is_alive():
-                        raise self._died()
-                    continue
-                message = _loads(self.conn.recv_bytes())
-            except (EOFError, OSError):
-                raise self._died() from None
-            if message[0] == "error":
-                _, kind, text, trace = message
-                if kind == "ValueError":  # bad input reaches the user as the one line it is
-                    raise ValueError(text)
-                raise RuntimeError(f"collector process {self.index} failed: {trace}")
-            if message[0] == kind:
-                return message
-            if message[0] == "batch":  # a batch that came before the reply asked for: keep it
-                self.pending.append(message)
-            else:
-                raise RuntimeError(f"unexpected message from collector process {self.index}: {message[0]!r}")
-
-    def _died(self) -> WorkerDied:
-        self.process.join(timeout=5)
-        cause = death_cause(self.process.exitcode)
-        return WorkerDied(f"collector worker {self.index} (pid {self.process.pid}) died: {cause}")
-
-    def stop(self) -> None:
-        if self.process is not None and self.process.is_alive():
-            with contextlib.suppress(WorkerDied):
-                self.send("stop")
-            self.process.join(timeout=10)
-            if self.process.is_alive():
-                self.process.kill()  # it ignores SIGTERM (bfc.lifetime.bind_to_parent)
-                self.process.join(timeout=5)
-        if self.conn is not None:
-            self.conn.close()
-        self.conn, self.process = None, None
-
-
-def _dumps(message) -> bytes:
-    """Tensors as numpy arrays (their exact bytes), so plain pickle copies them: torch's own
-    reduction would share each through a new shared-memory segment and a passed descriptor."""
-    return pickle.dumps(_tree(message, torch.Tensor, lambda t: _Array(t.detach().numpy())), pickle.HIGHEST_PROTOCOL)
-
-
-def _loads(data: bytes):
-    return _tree(pickle.loads(data), _Array, lambda a: torch.from_numpy(a.array))
-
-
-def _tree(x, kind, leaf):
-    """`x` (dicts, lists and tuples of anything) with every `kind` in it replaced by `leaf(it)`."""
-    if isinstance(x, kind):
-        return leaf(x)
-    if isinstance(x, dict):
-        return {k: _tree(v, kind, leaf) for k, v in x.items()}
-    if isinstance(x, (list, tuple)):
-        return type(x)(_tree(v, kind, leaf) for v in x)
-    return x
-
-
-class _Array:
-    """A tensor in transit (a numpy array that the message's own arrays can be told apart from)."""
-
-    __slots__ = ("array",)
-
-    def __init__(self, array):
-        self.array = array
-
-    def __reduce__(self):
-        return _Array, (self.array,)
+        super().start(_work, cfg, slots, total_frames, self.resume)
 
 
 class _Stop(Exception):
     pass
 
 
-def _work(cfg: dict, slots, conn, learner_end, total_frames: int, resume: dict | None, parent: int, name: str) -> None:
+def _work(conn, learner_end, parent: int, name: str, cfg: dict, slots, total_frames: int, resume: dict | None) -> None:
     """The collector process: batch i flies the weights after i - 1 updates (the initial ones for
     batches 0 and 1) while the learner runs update i - 1; every command is handled in order
     whenever the worker waits for weights it does not have yet. It dies with the learner."""
@@ -344,7 +252,7 @@ def _work(cfg: dict, slots, conn, learner_end, total_frames: int, resume: dict |
             received, index = dict(resume["received"]), int(resume["index"])
 
         def send(*message) -> None:
-            conn.send_bytes(_dumps(message))
+            conn.send_bytes(dumps(message))
 
         def handle(command) -> None:
             if command[0] == "weights":
@@ -356,7 +264,7 @@ def _work(cfg: dict, slots, conn, learner_end, total_frames: int, resume: dict |
                 raise _Stop
 
         def next_command():
-            return _loads(conn.recv_bytes())
+            return loads(conn.recv_bytes())
 
         fpb = int(cfg.collector.frames_per_batch)
         batches = iter(local)
@@ -375,5 +283,4 @@ def _work(cfg: dict, slots, conn, learner_end, total_frames: int, resume: dict |
     except (_Stop, EOFError, BrokenPipeError, ConnectionResetError):  # asked to stop, or the learner is gone
         return
     except Exception as err:  # noqa: BLE001 - reported to the learner, which raises it
-        with contextlib.suppress(OSError):
-            conn.send_bytes(_dumps(("error", type(err).__name__, str(err), traceback.format_exc(limit=5))))
+        report_error(conn, err)

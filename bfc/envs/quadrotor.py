@@ -57,6 +57,19 @@ FLAT_ODOMETRY, FLAT_QUATERNION, FLAT_MOTORS, FLAT_GOAL, FLAT_REWARD = (
     slice(26, 29),
     slice(29, 30),
 )
+# inside the odometry (bfc.keys.ODOMETRY's layout): position, velocity, accelerations, Euler angles, rates
+FLAT_POSITION, FLAT_LINEAR_VELOCITY, FLAT_ANGULAR_VELOCITY = slice(0, 3), slice(3, 6), slice(12, 15)
+
+
+def state_views(flat: torch.Tensor) -> dict:
+    """The env's `"state"` entries (ground truth) as views into outputs (..., 30)."""
+    return {
+        "position": flat[..., FLAT_POSITION],
+        "quaternion": flat[..., FLAT_QUATERNION],
+        "linear_velocity": flat[..., FLAT_LINEAR_VELOCITY],
+        "angular_velocity": flat[..., FLAT_ANGULAR_VELOCITY],
+        "motor_speeds": flat[..., FLAT_MOTORS],
+    }
 
 
 def _body_xy_velocity(phys: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -578,13 +591,7 @@ class QuadrotorEnv(EnvBase):
         out = {
             keys.ODOMETRY: flat[..., FLAT_ODOMETRY],
             keys.GOAL: flat[..., FLAT_GOAL],
-            keys.STATE: {
-                "position": flat[..., 0:3],
-                "quaternion": flat[..., FLAT_QUATERNION],
-                "linear_velocity": flat[..., 3:6],
-                "angular_velocity": flat[..., 12:15],
-                "motor_speeds": flat[..., FLAT_MOTORS],
-            },
+            keys.STATE: state_views(flat),
             keys.TERMINATED: terminated.unsqueeze(-1),
             keys.TRUNCATED: truncated.unsqueeze(-1),
             keys.DONE: (terminated | truncated).unsqueeze(-1),

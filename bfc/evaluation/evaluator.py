@@ -16,11 +16,11 @@ from bfc.factory import make_flight_env, physics_step
 class ProtocolEvaluator:
     """Flies a policy network from the validation starts (`eval.validation_seed`) and returns the
     `eval/*` metrics: success rate, crash rate, and over the successful flights the hover error and
-    tilt (bfc.evaluation.metrics: the same numbers the reports call so). `lean=False` flies
+    tilt (bfc.evaluation.metrics: the same numbers the reports call so). `torchrl=True` flies
     through TorchRL's `env.step` (the same flights, slower: bench/eval_time.py compares the two)."""
 
-    def __init__(self, cfg, lean: bool = True):
-        self.lean = lean
+    def __init__(self, cfg, torchrl: bool = False):
+        self.torchrl = torchrl
         e = cfg.eval
         # eval.physics_dt, or (null) the step training integrates with: validation flies the
         # simulator the policy learns in; the test flights of evaluate.py fly the reference step
@@ -38,7 +38,7 @@ class ProtocolEvaluator:
         self.flights = None
 
     def __call__(self, net) -> dict[str, float]:
-        flights = run_flights(self.env, net, self.starts, self.steps, lean=self.lean)
+        flights = run_flights(self.env, net, self.starts, self.steps, torchrl=self.torchrl)
         self.flights = flights  # the last evaluation's flights (logger.video films one)
         verdict = judge(flights, self.threshold, self.hold_seconds)
         survived = flights.get("alive")[:, -1]

@@ -8,6 +8,7 @@ bfc.evaluation.flying.fly resolves a controller by name, path or module and flie
 from __future__ import annotations
 
 import time
+import warnings
 from contextlib import contextmanager
 
 import torch
@@ -17,9 +18,10 @@ from torchrl.envs.utils import ExplorationType, set_exploration_type, step_mdp
 
 from bfc import keys
 from bfc.agent import SamplingActor, gaussian_net
-from bfc.envs.quadrotor import FLAT_GOAL, FLAT_ODOMETRY
+from bfc.envs.quadrotor import FLAT_GOAL, state_views
 from bfc.factory import find_transform
-from bfc.transforms import GivenStarts, MotorSpeedAction, OdometryNoise, PolicyObservation
+from bfc.transforms import GivenStarts, MotorSpeedAction
+from bfc.transforms.pipeline import Pipeline, UnknownStage
 
 
 def _given_starts(env: TransformedEnv) -> GivenStarts:
@@ -54,7 +56,7 @@ _RECORDED = (
 
 @torch.no_grad()
 def run_flights(
-    env: TransformedEnv, policy, starts: torch.Tensor, steps: int, goal_schedule=None, lean: bool = True
+    env: TransformedEnv, policy, starts: torch.Tensor, steps: int, goal_schedule=None, torchrl: bool = False
 ) -> TensorDict:
     """Fly `policy` (deterministic) from `starts` (n, 12) for `steps` env steps.
 
@@ -64,8 +66,10 @@ def run_flights(
     Returns a TensorDict of shape (n, steps) with the ground truth, what the controller saw
     (`"odometry"`), the controller's `"action"` (motor speed commands, rad/s), `"goal"`, `"alive"`, `"time"` (s) and
     `"controller_seconds"` (wall-clock of the controller's call for the whole batch at that step).
-    bfc's own actor flies through `_LeanFlight` (the same flights, without TorchRL's per-step
-    plumbing); lean=False forces TorchRL's `env.step` (the reference the lean loop is tested against).
+    Flights run the env's pipeline (bfc.transforms.pipeline: the same stages TorchRL's `env.step`
+    runs, on plain tensors), for any stack of bfc's transforms, latency and noise included;
+    torchrl=True forces TorchRL's `env.step` (the reference the pipeline is tested against), as does
+    a stack with a transform that is not bfc's (with a warning that says so).
     """
     base = env.base_env
     _given_starts(env).set_starts(starts.float())
@@ -75,17 +79,34 @@ def run_flights(
     begin = getattr(policy, "begin_flight", None)
     if callable(begin):  # controllers with per-flight state (integrators, warm starts) forget it
         begin()
-    td = env.reset()
+    pipeline = None if torchrl else _pipeline(env, policy)
     with set_exploration_type(ExplorationType.DETERMINISTIC), one_torch_thread():
-        flight = _LeanFlight.for_env(env, policy) if lean else None
-        if flight is not None:
-            out, seconds = flight.fly(td, steps, schedule)
+        if pipeline is not None:
+            out, seconds = fly_pipeline(pipeline, policy, steps, schedule)
         else:
-            out, seconds = _torchrl_flight(env, policy, td, steps, schedule)
+            out, seconds = _torchrl_flight(env, policy, env.reset(), steps, schedule)
     n = base.num_envs
     out["time"] = torch.tensor([(t + 1) * base.dt for t in range(steps)]).expand(n, steps).clone()
     out["controller_seconds"] = torch.tensor(seconds).expand(n, steps).clone()
     return out
+
+
+_SEEN = {keys.ODOMETRY, keys.GOAL}  # what a controller flown through the pipeline is given
+
+
+def _pipeline(env: TransformedEnv, policy) -> Pipeline | None:
+    """The env's pipeline, or None (with a warning saying why) where TorchRL's env.step must fly."""
+    reads = set(getattr(policy, "in_keys", ())) if gaussian_net(policy) is None else set()
+    if not reads <= _SEEN:
+        warnings.warn(
+            f"the controller reads {sorted(map(str, reads - _SEEN))}: it flies through TorchRL's env.step", stacklevel=3
+        )
+        return None
+    try:
+        return Pipeline.of(env)
+    except UnknownStage as e:
+        warnings.warn(f"{e} is not a bfc transform: this flight runs through TorchRL's env.step", stacklevel=3)
+        return None
 
 
 def _torchrl_flight(env: TransformedEnv, policy, td: TensorDict, steps: int, schedule: dict):
@@ -120,57 +141,36 @@ def _torchrl_flight(env: TransformedEnv, policy, td: TensorDict, steps: int, sch
     return out, seconds
 
 
-class _LeanFlight:
-    """bfc's own deterministic actor flown as TorchRL's `env.step` flies it on an env whose
-    transforms are GivenStarts, odometry noise (optional), PolicyObservation and MotorSpeedAction:
-    per step the actor's mean, the action map to rad/s, the base env's `advance`, the noise's
-    `corrupt`, the observation's `advance`, all on plain tensors; the outputs are packed once at
-    the end. tests/evaluation/test_protocol.py checks the flights are TorchRL's bit for bit."""
-
-    def __init__(self, env: TransformedEnv, net, observation, action_map, noise):
-        self.base, self.net, self.observation, self.action_map, self.noise = (
-            env.base_env,
-            net,
-            observation,
-            action_map,
-            noise,
-        )
-
-    @classmethod
-    def for_env(cls, env: TransformedEnv, policy):
-        net = gaussian_net(policy)
-        noise = [t for t in env.transform if isinstance(t, OdometryNoise)]
-        kinds = {type(t) for t in env.transform if not isinstance(t, OdometryNoise)}
-        if net is None or len(noise) > 1 or kinds != {GivenStarts, PolicyObservation, MotorSpeedAction}:
-            return None
-        observation, action = find_transform(env, PolicyObservation), find_transform(env, MotorSpeedAction)
-        return cls(env, net, observation, action, noise[0] if noise else None)
-
-    def fly(self, td: TensorDict, steps: int, schedule: dict):
-        base, n = self.base, self.base.num_envs
-        obs = td.get(keys.OBSERVATION)
-        alive = torch.ones(n, dtype=torch.bool)
-        flats, seen, commands, alives, seconds = [], [], [], [], []
-        for t in range(steps):
-            if t in schedule and t > 0:
-                base.set_goal(schedule[t])
-            t0 = time.perf_counter()
-            command = self.action_map.to_command(self.net.mean(obs))
-            seconds.append(time.perf_counter() - t0)
-            flat, terminated, _ = base.advance(command)
-            odometry = flat[:, FLAT_ODOMETRY]
-            if self.noise is not None:
-                odometry = self.noise.corrupt(odometry)
-            obs = self.observation.advance(command, odometry, flat[:, FLAT_GOAL])
-            alive = alive & ~terminated
-            flats.append(flat)
-            seen.append(odometry)
-            commands.append(command)
-            alives.append(alive)
-        none = torch.zeros(n, steps, dtype=torch.bool)
-        packed = base.pack(torch.stack(flats, 1), none, none, reward=False)
-        out = TensorDict({key: packed.get(key) for key in _RECORDED}, batch_size=[n, steps])
-        out.set(keys.ODOMETRY, torch.stack(seen, 1))
-        out.set(keys.ACTION, torch.stack(commands, 1))
-        out.set("alive", torch.stack(alives, 1))
-        return out, seconds
+def fly_pipeline(pipeline: Pipeline, policy, steps: int, schedule: dict | None = None, start=None):
+    """Fly `steps` control steps through `pipeline` (any simulator's) from its envs' starts
+    (`start` (n, 12), or what its samplers hold): bfc's actor's mean (the action map is a stage),
+    or a controller's TensorDict call on the odometry it sees and the goal (rad/s). schedule:
+    {step: goal}. (the flight's TensorDict without "time", the controller's seconds per step)."""
+    n, schedule = pipeline.num_envs, schedule or {}
+    net = gaussian_net(policy)
+    state = pipeline.start(start)
+    alive = torch.ones(n, dtype=torch.bool)
+    flats, seen, commands, alives, seconds = [], [], [], [], []
+    for t in range(steps):
+        if t in schedule and t > 0:
+            pipeline.physics.set_goal(state, schedule[t])
+        t0 = time.perf_counter()
+        if net is not None:
+            state.action = net.mean(state.observation)
+        else:
+            td = TensorDict({keys.ODOMETRY: state.odometry, keys.GOAL: state.goal}, batch_size=[n])
+            state.action, state.command = None, policy(td).get(keys.ACTION).clone()
+        seconds.append(time.perf_counter() - t0)
+        pipeline.step(state)
+        alive = alive & ~state.terminated
+        flats.append(state.truth)
+        seen.append(state.odometry)
+        commands.append(state.command)
+        alives.append(alive)
+    flat = torch.stack(flats, 1)
+    out = TensorDict({keys.STATE: state_views(flat)}, batch_size=[n, steps])
+    out.set(keys.ODOMETRY, torch.stack(seen, 1))
+    out.set(keys.GOAL, flat[..., FLAT_GOAL])
+    out.set(keys.ACTION, torch.stack(commands, 1))
+    out.set("alive", torch.stack(alives, 1))
+    return out, seconds

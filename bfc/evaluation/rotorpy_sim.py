@@ -19,8 +19,9 @@ How (docs/evaluation.md, "Another simulator: RotorPy"):
   rotor r1 is the policy's front motor (the odometry is expressed in that frame).
 - Each control step the 18 odometry numbers are built as bfc's env builds them (position, velocity
   and velocity difference quotient in the world, ZYX roll/pitch/yaw, body rates and their
-  difference quotient) and the policy runs as bfc's lean flight loop runs it (observation map,
-  actor mean, action map).
+  difference quotient). `RotorPyPhysics` is the physics stage of bfc's pipeline
+  (bfc.transforms.pipeline): the policy's maps, the flight loop and the judge are the ones MuJoCo
+  flights run.
 - The floor: RotorPy's own ground rule (Multirotor's `enable_ground`: clamp the height, no
   downward speed, horizontal damping, zero body rates, roll and pitch flattened), with the floor
   where a level bfc drone's centre rests (the airframe's ground height), since the batched vehicle has none.
@@ -37,13 +38,12 @@ import numpy as np
 import torch
 from tensordict import TensorDict
 
-from bfc import keys
 from bfc.agent import load_policy
 from bfc.config import ROTORPY_AIRFRAMES
 from bfc.envs import GOAL, REFERENCE_PHYSICS_DT, AirframeParams, TerminationParams
 from bfc.envs.quadrotor import BODY, build_model
 from bfc.envs.rotations import euler_to_quat, quat_to_euler
-from bfc.evaluation.flights import one_torch_thread
+from bfc.evaluation.flights import fly_pipeline, one_torch_thread
 from bfc.evaluation.flying import (
     PROTOCOL_HZ,
     airframe_of,
@@ -55,6 +55,7 @@ from bfc.evaluation.flying import (
 from bfc.evaluation.protocol import TEST_SEED
 from bfc.evaluation.suites import CONDITIONS, robust_results
 from bfc.factory import trained_rate
+from bfc.transforms.pipeline import Physics, Pipeline, StepState
 
 INSTALL_HINT = 'sim=rotorpy needs RotorPy: pip install -e ".[rotorpy]"'
 # RotorPy's own vehicles (an "X": r1 front-left, r2 front-right, r3 back-right, r4 back-left), by
@@ -302,6 +303,36 @@ class RotorPyQuads:
         return self.termination.crashed(self.state["x"].unbind(-1), (w, x, y, z), cos_tilt, prev_vz, self.hull)
 
 
+class RotorPyPhysics(Physics):
+    """RotorPyQuads as the pipeline's physics stage: the outputs in QuadrotorEnv's FLAT_* layout
+    (the odometry, the policy frame's quaternion, the motor speeds, the goal; no reward)."""
+
+    def __init__(self, quads: RotorPyQuads, goal):
+        self.quads = quads
+        self.goal = torch.as_tensor(goal, dtype=torch.float32).expand(quads.n, 3).clone()
+
+    def _observe(self, state: StepState) -> None:
+        q = self.quads
+        reward = torch.zeros(q.n, 1)
+        parts = [q.odometry(), q.quaternion().float(), q.motor_speeds().float(), self.goal, reward]
+        state.set_truth(torch.cat(parts, -1))
+
+    def advance(self, state: StepState) -> None:
+        self.quads.step(state.command if state.applied is None else state.applied)
+        self._observe(state)
+        state.terminated, state.truncated = ~self.quads.alive, torch.zeros(self.quads.n, dtype=torch.bool)
+
+    def restart(self, state: StepState, mask: torch.Tensor) -> None:
+        if not bool(mask.all()):
+            raise ValueError("RotorPy flights start every vehicle together")
+        self.quads.place(state.start)
+        self._observe(state)
+
+    def set_goal(self, state: StepState, goal) -> None:
+        self.goal = torch.as_tensor(goal, dtype=torch.float32).expand(self.quads.n, 3).clone()
+        state.goal = self.goal
+
+
 def _resolve(controller, control_hz, nominal: AirframeParams | None = None):
     """(spec or None, the network or controller module, its control rate); a classical controller
     is built for `nominal` (the Hummingbird when None)."""
@@ -362,62 +393,17 @@ def fly_rotorpy(
         speeds = torch.tensor([[wind_speed_for_drag(params, float(f)) if f > 0 else 0.0] for f in size[:, 0]])
         wind = torch.where(size > 0, force / size.clamp(min=1e-12), 0.0) * speeds
     quads = RotorPyQuads(params, n, dt, airframe, wind, AirframeParams(**nominal))
-    quads.place(starts)
-    goal_t = torch.as_tensor(goal, dtype=torch.float32).expand(n, 3).clone()
+    maps = [spec.make_observation_map(n, dt), spec.make_action_map()] if spec is not None else []
+    pipeline = Pipeline(maps, RotorPyPhysics(quads, goal), n)  # make_env's order: observation, action
     begin = getattr(net, "begin_flight", None)
     if callable(begin):
         begin()
-    rows = {k: [] for k in ("odometry", "position", "quaternion", "velocity", "rates", "motors", "action", "alive")}
-    seconds_per_call = []
     with one_torch_thread():
-        odometry = quads.odometry()
-        if spec is not None:
-            observation, action_map = spec.make_observation_map(n, dt), spec.make_action_map()
-            obs = observation.restart(torch.ones(n, dtype=torch.bool), odometry, goal_t)
-        for _ in range(steps):
-            t0 = time.perf_counter()
-            if spec is not None:
-                command = action_map.to_command(net.mean(obs))
-            else:
-                td = net(TensorDict({keys.ODOMETRY: odometry, keys.GOAL: goal_t}, batch_size=[n]))
-                command = td.get(keys.ACTION).float().clone()
-            seconds_per_call.append(time.perf_counter() - t0)
-            quads.step(command)
-            odometry = quads.odometry()
-            if spec is not None:
-                obs = observation.advance(command, odometry, goal_t)
-            for k, v in (
-                ("odometry", odometry),
-                ("position", quads.state["x"]),
-                ("quaternion", quads.quaternion()),
-                ("velocity", quads.state["v"]),
-                ("rates", quads.body_rates()),
-                ("motors", quads.motor_speeds()),
-                ("action", command),
-                ("alive", quads.alive),
-            ):
-                rows[k].append(v.clone() if k == "alive" else v.float())
-    col = {k: torch.stack(v, 1) for k, v in rows.items()}
-    state = {
-        "position": col["position"],
-        "quaternion": col["quaternion"],
-        "linear_velocity": col["velocity"],
-        "angular_velocity": col["rates"],
-        "motor_speeds": col["motors"],
-    }
-    return TensorDict(
-        {
-            keys.ODOMETRY: col["odometry"],
-            keys.GOAL: goal_t.unsqueeze(1).expand(n, steps, 3).clone(),
-            keys.STATE: state,
-            keys.ACTION: col["action"],
-            "alive": col["alive"],
-            "time": torch.tensor([(t + 1) * dt for t in range(steps)]).expand(n, steps).clone(),
-            "controller_seconds": torch.tensor(seconds_per_call).expand(n, steps).clone(),
-            "wind": quads.state["wind"].float().unsqueeze(1).expand(n, steps, 3).clone(),
-        },
-        batch_size=[n, steps],
-    )
+        out, seconds_per_call = fly_pipeline(pipeline, net, steps, start=starts)
+    out["time"] = torch.tensor([(t + 1) * dt for t in range(steps)]).expand(n, steps).clone()
+    out["controller_seconds"] = torch.tensor(seconds_per_call).expand(n, steps).clone()
+    out["wind"] = quads.state["wind"].float().unsqueeze(1).expand(n, steps, 3).clone()
+    return out
 
 
 def fly_condition_rotorpy(

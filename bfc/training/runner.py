@@ -18,6 +18,7 @@ ResumableCollector) and torch's RNG state.
 
 from __future__ import annotations
 
+import copy
 import json
 import math
 import os
@@ -34,6 +35,7 @@ from bfc.agent.normalization import RewardScale
 from bfc.collectors import episode_stats, make_collection
 from bfc.evaluation.evaluator import ProtocolEvaluator
 from bfc.lifetime import Preempted, SigtermGuard, WorkerDied
+from bfc.training.background_eval import BackgroundEvaluator
 from bfc.training.learners import learner_gamma, make_learner
 from bfc.training.lr_schedule import adapt_to_kl, set_learning_rate
 
@@ -130,6 +132,11 @@ class Runner:
         # the env, its curriculum and the collector (here, or in a worker process)
         self.collection = make_collection(cfg, self.net, self.total)
         self.evaluator = None  # built at the first evaluation: the first batch starts sooner
+        # eval.background: the validation flights in a process of their own while training goes on
+        # (in place when a result must steer the run at once: stop_at_success, or when filmed)
+        e, c = cfg.eval, cfg.collector
+        background = e.background and c.stop_at_success is None and not cfg.logger.video
+        self.background = BackgroundEvaluator(cfg) if background else None
         self.frames, self.batches, self.wall = 0, 0, 0.0
         self.history: list[dict] = []
         self.resumed_from: list[int] = []  # the frame counts this run was resumed at (killed, preempted)
@@ -165,7 +172,8 @@ class Runner:
         }
 
     def save(self, path=None) -> None:
-        """Write a checkpoint atomically; the one it replaces is kept as previous.pt."""
+        """Write a checkpoint atomically (every evaluation so far in it); the one it replaces is kept as previous.pt."""
+        self.take_evaluations()
         path = Path(path) if path is not None else self.run_dir / CHECKPOINT
         path.parent.mkdir(parents=True, exist_ok=True)
         if path.exists():
@@ -192,9 +200,11 @@ class Runner:
             ) from None
         torch.set_rng_state(ckpt["torch_rng"])
 
-    def write_policy(self, path: Path) -> None:
-        info = {"frames": self.frames, "wall_seconds": round(self.wall, 1), "seed": int(self.cfg.seed)}
-        save_policy(path, self.spec, self.net, info)
+    def write_policy(self, path: Path, net=None, entry: dict | None = None) -> None:
+        """`net` (the policy's own by default) as a policy file, with the frames and wall-clock of `entry` (now)."""
+        entry = entry or {"frames": self.frames, "wall_seconds": round(self.wall, 1)}
+        info = {"frames": entry["frames"], "wall_seconds": entry["wall_seconds"], "seed": int(self.cfg.seed)}
+        save_policy(path, self.spec, net or self.net, info)
 
     # ------------------------------------------------------------------ log / evaluate
     def log(self, metrics: dict, step: int) -> None:
@@ -203,28 +213,47 @@ class Runner:
                 if isinstance(v, (int, float)) and math.isfinite(v):
                     self.logger.add_scalar(k, v, global_step=step)
 
-    def evaluate(self) -> dict:
-        """The protocol on the validation starts; keeps policy.pt as the best so far."""
+    def evaluate(self) -> None:
+        """The protocol on the validation starts, here or in the background evaluator (whose
+        earlier results are taken first, in order); keeps policy.pt as the best so far."""
+        entry = {"frames": self.frames, "wall_seconds": round(self.wall, 1)}
+        if self.background is not None:
+            self.take_evaluations()
+            self.background.submit(self.net, entry)
+            return
         t0 = time.perf_counter()
         if self.evaluator is None:
             self.evaluator = ProtocolEvaluator(self.cfg)
         metrics = self.evaluator(self.net)
         metrics["time/eval_seconds"] = time.perf_counter() - t0
-        # unix_seconds: when the evaluation ended, so a benchmark can count from process start
-        entry = {"frames": self.frames, "wall_seconds": round(self.wall, 1), "unix_seconds": round(time.time(), 2)}
-        self.history.append({**entry, **metrics})
-        self.log(metrics, self.frames)
+        self.record_evaluation(entry, metrics, time.time())
         if self.cfg.logger.video and self.logger is not None:
             summary = self.evaluator.video(f"frame {self.frames:,}:")
             self.logger.file_writer.add_summary(summary, self.frames)  # public: SummaryWriter's own writer
+
+    def take_evaluations(self) -> None:
+        """The background evaluator's results so far (waiting for any still flying), recorded in order."""
+        if self.background is None:
+            return
+        for entry, weights, metrics, unix in self.background.results():
+            self.record_evaluation(entry, metrics, unix, weights)
+
+    def record_evaluation(self, entry: dict, metrics: dict, unix: float, weights: dict | None = None) -> None:
+        """History, logs and policy.pt for one evaluation of `weights` (None: the net as it is)."""
+        # unix_seconds: when the evaluation ended, so a benchmark can count from process start
+        self.history.append({**entry, "unix_seconds": round(unix, 2), **metrics})
+        self.log(metrics, entry["frames"])
         # Success saturates at 1.0 early, so ties are common: among them the more precise hover wins.
         error = metrics.get("eval/hover_error", math.inf)
         better = (metrics["eval/success_rate"], -error) >= (self.best, -self.best_error)
         if better:
             self.best, self.best_error = metrics["eval/success_rate"], error
         if better or not self.cfg.checkpoint.keep_best:
-            self.write_policy(self.run_dir / "policy.pt")
-        return metrics
+            net = self.net
+            if weights is not None:  # a copy of the net (a new one would draw its init from torch's generator)
+                net = copy.deepcopy(self.net)
+                net.load_state_dict(weights)
+            self.write_policy(self.run_dir / "policy.pt", net, entry)
 
     def should_stop(self) -> bool:
         """collector.stop_at_success: the last `stop_patience` evaluations (after frame 0) all reached it."""
@@ -288,9 +317,10 @@ class Runner:
         e, c = cfg.eval, cfg.checkpoint
         next_eval = next_evaluation(self.frames, e)
         next_ckpt = (self.frames // c.interval_frames + 1) * c.interval_frames
-        last_success = self.history[-1]["eval/success_rate"] if self.history else float("nan")
+        if self.background is not None:
+            self.background.start()
         if ckpt is None and e.at_start:
-            last_success = self.evaluate()["eval/success_rate"]  # the untrained policy, at frame 0
+            self.evaluate()  # the untrained policy, at frame 0
 
         self.collecting_since = time.time()  # unix seconds: start-up ends here (bench/startup.py)
         t_batch = time.perf_counter()
@@ -304,7 +334,7 @@ class Runner:
             if self.batches % cfg.logger.log_interval == 0:
                 self.log(metrics, self.frames)
             if self.frames >= next_eval or self.frames >= self.total:
-                last_success = self.evaluate()["eval/success_rate"]
+                self.evaluate()
                 next_eval = next_evaluation(self.frames, e)
                 css = self.collection.css_values()
                 if css is not None and self.logger is not None:
@@ -317,6 +347,7 @@ class Runner:
                 self.save()
                 next_ckpt = (self.frames // c.interval_frames + 1) * c.interval_frames
             if progress is not None:
+                last_success = self.history[-1]["eval/success_rate"] if self.history else float("nan")
                 progress.update(n)
                 progress.set_postfix(fps=f"{metrics['time/fps']:.0f}", success=f"{last_success:.2f}", refresh=False)
             if preempted:
@@ -371,6 +402,7 @@ class Runner:
 
     def _finish(self) -> dict:
         run_dir, cfg = self.run_dir, self.cfg
+        self.take_evaluations()
         self.write_policy(run_dir / "policy_last.pt")
         if not (run_dir / "policy.pt").exists():
             self.write_policy(run_dir / "policy.pt")
@@ -404,6 +436,8 @@ class Runner:
         self.collection.close()
         if self.evaluator is not None:
             self.evaluator.close()
+        if self.background is not None:
+            self.background.close()
 
 
 def train(cfg, run_dir) -> dict:

@@ -8,8 +8,9 @@ from torchrl.envs import Transform
 
 from bfc import keys
 from bfc.checks import check
+from bfc.transforms.pipeline import Stage, StepState
 
-__all__ = ["BatchedTransform", "StartSampler", "check", "reset_mask"]
+__all__ = ["BatchedTransform", "StartSampler", "Stage", "StepState", "check", "reset_mask"]
 
 
 def reset_mask(tensordict: TensorDictBase | None, n: int) -> torch.Tensor:
@@ -19,8 +20,9 @@ def reset_mask(tensordict: TensorDictBase | None, n: int) -> torch.Tensor:
     return tensordict.get(keys.RESET).reshape(n)
 
 
-class BatchedTransform(Transform):
-    """A transform over an env with batch_size (num_envs,), holding per-env state as buffers.
+class BatchedTransform(Transform, Stage):
+    """A transform over an env with batch_size (num_envs,), holding per-env state as buffers, and a
+    stage of the pipeline (bfc.transforms.pipeline): its TorchRL hooks call its `advance` / `restart`.
 
     Buffers go into `state_dict`, so whatever must survive checkpoint/resume is a buffer.
     Random draws come from the transform's own generator, seeded by `set_seed` (make_env seeds

@@ -17,17 +17,22 @@ from torchrl.data import Bounded, Composite
 from torchrl.envs import Transform
 
 from bfc import keys
-from bfc.transforms._base import check
+from bfc.transforms._base import Stage, StepState, check
 
 ACTION_MAPS = ("thrust", "speed")
 
 
-class MotorSpeedAction(Transform):
+class MotorSpeedAction(Transform, Stage):
+    before_physics = True
+
     def __init__(self, hover_speed: float, max_speed: float, action_map: str = "thrust"):
         super().__init__(in_keys_inv=[keys.ACTION], out_keys_inv=[keys.ACTION])
         check(0 < hover_speed < max_speed, "hover_speed", f"in (0, max_speed={max_speed})", hover_speed)
         check(action_map in ACTION_MAPS, "model.action_map", " or ".join(ACTION_MAPS), action_map)
         self.hover_speed, self.max_speed, self.action_map = float(hover_speed), float(max_speed), action_map
+
+    def advance(self, state: StepState) -> None:
+        state.command = self.to_command(state.action)
 
     def _inv_apply_transform(self, action: torch.Tensor) -> torch.Tensor:
         return self.to_command(action)

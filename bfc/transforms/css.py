@@ -21,7 +21,7 @@ import torch
 from tensordict import TensorDictBase
 
 from bfc import keys
-from bfc.transforms._base import StartSampler, check
+from bfc.transforms._base import StartSampler, StepState, check
 
 
 class ControlledStartingState(StartSampler):
@@ -84,7 +84,11 @@ class ControlledStartingState(StartSampler):
         self.visited |= hit
         self.episodes += counts.long()
 
-    def advance(self, reward: torch.Tensor, done: torch.Tensor) -> None:
+    def advance(self, state: StepState) -> None:
+        """The step's reward and end of episode (TDTS's included: it runs before CSS)."""
+        self.count(state.reward, state.terminated | state.truncated)
+
+    def count(self, reward: torch.Tensor, done: torch.Tensor) -> None:
         """One control step: add each env's reward (N,) to its episode; apply eq. 18 for the
         episodes that ended (`done` (N,) bool) in a square CSS chose."""
         self.reward_sum += reward
@@ -95,8 +99,10 @@ class ControlledStartingState(StartSampler):
             self.square.masked_fill_(ended, -1)
 
     def _step(self, tensordict: TensorDictBase, next_tensordict: TensorDictBase) -> TensorDictBase:
-        n = self.num_envs
-        self.advance(next_tensordict.get(keys.REWARD).reshape(n), next_tensordict.get(keys.DONE).reshape(n))
+        n, nxt = self.num_envs, next_tensordict
+        state = StepState(reward=nxt.get(keys.REWARD).reshape(n))
+        state.terminated, state.truncated = nxt.get(keys.TERMINATED).reshape(n), nxt.get(keys.TRUNCATED).reshape(n)
+        self.advance(state)
         return next_tensordict
 
     def _reset(self, tensordict: TensorDictBase, tensordict_reset: TensorDictBase) -> TensorDictBase:

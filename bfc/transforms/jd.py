@@ -12,7 +12,7 @@ import math
 import torch
 from tensordict import TensorDictBase
 
-from bfc.transforms._base import StartSampler, check
+from bfc.transforms._base import StartSampler, StepState, check
 
 SCHEDULES = ("linear", "cosine", "constant")
 
@@ -126,12 +126,12 @@ class JumpingDistribution(StartSampler):
                 drawn[:, 4:] = torch.where(still.unsqueeze(-1), 0.0, drawn[:, 4:])
         start[:, 2:12] = torch.where(air.unsqueeze(-1), drawn, start[:, 2:12])
 
-    def advance(self) -> None:
+    def advance(self, state: StepState) -> None:
         """One control step of every env: p(t) counts it."""
         self.frames += self.num_envs
 
     def _step(self, tensordict: TensorDictBase, next_tensordict: TensorDictBase) -> TensorDictBase:
-        self.advance()
+        self.advance(StepState())
         return next_tensordict
 
     def _reset(self, tensordict: TensorDictBase, tensordict_reset: TensorDictBase) -> TensorDictBase:

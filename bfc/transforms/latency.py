@@ -27,7 +27,7 @@ import torch
 from tensordict import TensorDictBase
 
 from bfc import keys
-from bfc.transforms._base import BatchedTransform, check, reset_mask
+from bfc.transforms._base import BatchedTransform, StepState, check, reset_mask
 
 
 def _delay_range(steps, name: str) -> tuple[int, int]:
@@ -58,7 +58,7 @@ class _Delay(BatchedTransform):
         s = min(max(float(self.range_scale), 0.0), 1.0)
         return int(self.low * s + 0.5), int(self.high * s + 0.5)
 
-    def restart(self, mask: torch.Tensor, value: torch.Tensor) -> None:
+    def refill(self, mask: torch.Tensor, value: torch.Tensor) -> None:
         """The envs in `mask` forget their past: every queued value is `value` (n, width)."""
         self.queue[mask] = value[mask].unsqueeze(1).to(self.queue.dtype)
         low, high = self.bounds()
@@ -71,7 +71,11 @@ class _Delay(BatchedTransform):
     def push(self, value: torch.Tensor) -> torch.Tensor:
         """Queue this step's `value` (n, width) and return each env's value of `delay` steps ago."""
         self.queue.copy_(torch.cat([value.unsqueeze(1).to(self.queue.dtype), self.queue[:, :-1]], 1))
-        return self.queue[self._rows, self.delay].to(value.dtype)
+        return self.read(value.dtype)
+
+    def read(self, dtype) -> torch.Tensor:
+        """Each env's queued value of `delay` steps ago."""
+        return self.queue[self._rows, self.delay].to(dtype)
 
 
 class ObservationDelay(_Delay):
@@ -80,21 +84,29 @@ class ObservationDelay(_Delay):
     def __init__(self, num_envs: int, steps):
         super().__init__(num_envs, steps, 18, "latency.observation_steps", in_keys=[keys.ODOMETRY])
 
-    def _step(self, tensordict: TensorDictBase, next_tensordict: TensorDictBase) -> TensorDictBase:
-        return next_tensordict.set(keys.ODOMETRY, self.push(next_tensordict.get(keys.ODOMETRY)))
+    def advance(self, state: StepState) -> None:
+        state.odometry = self.push(state.odometry)
 
-    def restart_and_read(self, mask: torch.Tensor, odometry: torch.Tensor) -> torch.Tensor:
-        """A reset of the envs in `mask` (their queues hold `odometry`), and what every env sees now."""
-        self.restart(mask, odometry)
-        return self.queue[self._rows, self.delay].to(odometry.dtype)
+    def restart(self, state: StepState, mask: torch.Tensor) -> None:
+        """The envs in `mask` queue their first odometry; every env sees what its queue says now."""
+        self.refill(mask, state.odometry)
+        state.odometry = self.read(state.odometry.dtype)
+
+    def _step(self, tensordict: TensorDictBase, next_tensordict: TensorDictBase) -> TensorDictBase:
+        state = StepState(odometry=next_tensordict.get(keys.ODOMETRY))
+        self.advance(state)
+        return next_tensordict.set(keys.ODOMETRY, state.odometry)
 
     def _reset(self, tensordict: TensorDictBase, tensordict_reset: TensorDictBase) -> TensorDictBase:
-        odometry = self.restart_and_read(reset_mask(tensordict, self.num_envs), tensordict_reset.get(keys.ODOMETRY))
-        return tensordict_reset.set(keys.ODOMETRY, odometry)
+        state = StepState(odometry=tensordict_reset.get(keys.ODOMETRY))
+        self.restart(state, reset_mask(tensordict, self.num_envs))
+        return tensordict_reset.set(keys.ODOMETRY, state.odometry)
 
 
 class ActionDelay(_Delay):
     """The env applies the command (rad/s) of `steps` control steps ago; `initial` before that."""
+
+    before_physics = True
 
     def __init__(self, num_envs: int, steps, initial: float):
         super().__init__(num_envs, steps, 4, "latency.action_steps")
@@ -102,8 +114,17 @@ class ActionDelay(_Delay):
         check(initial >= 0, "initial", ">= 0 (rad/s)", initial)
         self.initial = float(initial)
 
+    def advance(self, state: StepState) -> None:
+        state.applied = self.push(state.command)
+
+    def restart(self, state: StepState, mask: torch.Tensor) -> None:
+        """The envs in `mask` start again: their motors get `initial` until their first command arrives."""
+        self.refill(mask, torch.full((self.num_envs, 4), self.initial))
+
     def _inv_call(self, tensordict: TensorDictBase) -> TensorDictBase:
-        return tensordict.set(keys.ACTION, self.push(tensordict.get(keys.ACTION)))
+        state = StepState(command=tensordict.get(keys.ACTION))
+        self.advance(state)
+        return tensordict.set(keys.ACTION, state.applied)
 
     def _step(self, tensordict: TensorDictBase, next_tensordict: TensorDictBase) -> TensorDictBase:
         # The transforms after this one see the inverse-transformed input: give them back the
@@ -112,10 +133,6 @@ class ActionDelay(_Delay):
         tensordict.set(keys.ACTION, self.queue[:, 0].clone())
         return next_tensordict
 
-    def restart_at_hover(self, mask: torch.Tensor) -> None:
-        """The envs in `mask` start again: their motors get `initial` until their first command arrives."""
-        self.restart(mask, torch.full((self.num_envs, 4), self.initial))
-
     def _reset(self, tensordict: TensorDictBase, tensordict_reset: TensorDictBase) -> TensorDictBase:
-        self.restart_at_hover(reset_mask(tensordict, self.num_envs))
+        self.restart(StepState(), reset_mask(tensordict, self.num_envs))
         return tensordict_reset

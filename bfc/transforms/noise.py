@@ -13,7 +13,7 @@ import torch
 from tensordict import TensorDictBase
 
 from bfc import keys
-from bfc.transforms._base import BatchedTransform, check, reset_mask
+from bfc.transforms._base import BatchedTransform, StepState, check, reset_mask
 
 ODOMETRY_SIZE = 18
 ELEMENT_SETS = {"all": list(range(18)), "position": [0, 1, 2]}
@@ -78,12 +78,21 @@ class OdometryNoise(BatchedTransform):
             self.offset.copy_(torch.where(mask.unsqueeze(-1), drawn, self.offset))
         return noisy + self.offset
 
+    def advance(self, state: StepState) -> None:
+        state.odometry = self.corrupt(state.odometry)
+
+    def restart(self, state: StepState, mask: torch.Tensor) -> None:
+        state.odometry = self.corrupt(state.odometry, mask)
+
     def _step(self, tensordict: TensorDictBase, next_tensordict: TensorDictBase) -> TensorDictBase:
-        return next_tensordict.set(keys.ODOMETRY, self.corrupt(next_tensordict.get(keys.ODOMETRY)))
+        state = StepState(odometry=next_tensordict.get(keys.ODOMETRY))
+        self.advance(state)
+        return next_tensordict.set(keys.ODOMETRY, state.odometry)
 
     def _reset(self, tensordict: TensorDictBase, tensordict_reset: TensorDictBase) -> TensorDictBase:
-        odometry = self.corrupt(tensordict_reset.get(keys.ODOMETRY), reset_mask(tensordict, self.num_envs))
-        return tensordict_reset.set(keys.ODOMETRY, odometry)
+        state = StepState(odometry=tensordict_reset.get(keys.ODOMETRY))
+        self.restart(state, reset_mask(tensordict, self.num_envs))
+        return tensordict_reset.set(keys.ODOMETRY, state.odometry)
 
 
 class GaussianOdometryNoise(OdometryNoise):

@@ -37,7 +37,7 @@ from tensordict import TensorDictBase
 from torchrl.data import Composite, Unbounded
 
 from bfc import keys
-from bfc.transforms._base import BatchedTransform, check, reset_mask
+from bfc.transforms._base import BatchedTransform, StepState, check, reset_mask
 
 OBSERVATIONS = ("heading", "odometry")
 # The observation's scales, clip and integral constants: a policy's own (PolicySpec stores them in
@@ -177,7 +177,14 @@ class PolicyObservation(BatchedTransform):
         """The history one step on: the previous action becomes its newest entry."""
         return torch.cat([last_action.unsqueeze(-2), history[..., :-1, :]], -2)
 
-    def advance(self, command: torch.Tensor, odometry: torch.Tensor, goal: torch.Tensor) -> torch.Tensor:
+    def advance(self, state: StepState) -> None:
+        """The observation of the step: the command as commanded (not as applied late), the odometry as seen."""
+        state.observation = self.observe_step(state.command, state.odometry, state.goal)
+
+    def restart(self, state: StepState, mask: torch.Tensor) -> None:
+        state.observation = self.observe_restart(mask, state.odometry, state.goal)
+
+    def observe_step(self, command: torch.Tensor, odometry: torch.Tensor, goal: torch.Tensor) -> torch.Tensor:
         """One control step: remember the command just flown (N, 4, rad/s) as the previous action,
         integrate the position error, and return the observation (N, size) of the new odometry."""
         if self.command_history:
@@ -187,7 +194,7 @@ class PolicyObservation(BatchedTransform):
             self.integral.copy_(self.integrate(self.integral, odometry, goal))
         return self.build(odometry, goal, self.last_action, self.integral, self.history)
 
-    def restart(self, mask: torch.Tensor, odometry: torch.Tensor, goal: torch.Tensor) -> torch.Tensor:
+    def observe_restart(self, mask: torch.Tensor, odometry: torch.Tensor, goal: torch.Tensor) -> torch.Tensor:
         """The envs in `mask` (N,) start a new episode: no previous action, and the integral of
         the error of their first odometry alone (the integral always includes the current
         error, from the first step on, as the exported graph computes it); the observation
@@ -209,15 +216,15 @@ class PolicyObservation(BatchedTransform):
 
     def _step(self, tensordict: TensorDictBase, next_tensordict: TensorDictBase) -> TensorDictBase:
         # The action here is the motor command in rad/s (inverse transforms already ran).
-        obs = self.advance(
-            tensordict.get(keys.ACTION), next_tensordict.get(keys.ODOMETRY), next_tensordict.get(keys.GOAL)
-        )
-        return next_tensordict.set(keys.OBSERVATION, obs)
+        state = StepState(command=tensordict.get(keys.ACTION), odometry=next_tensordict.get(keys.ODOMETRY))
+        state.goal = next_tensordict.get(keys.GOAL)
+        self.advance(state)
+        return next_tensordict.set(keys.OBSERVATION, state.observation)
 
     def _reset(self, tensordict: TensorDictBase, tensordict_reset: TensorDictBase) -> TensorDictBase:
-        mask = reset_mask(tensordict, self.num_envs)
-        obs = self.restart(mask, tensordict_reset.get(keys.ODOMETRY), tensordict_reset.get(keys.GOAL))
-        return tensordict_reset.set(keys.OBSERVATION, obs)
+        state = StepState(odometry=tensordict_reset.get(keys.ODOMETRY), goal=tensordict_reset.get(keys.GOAL))
+        self.restart(state, reset_mask(tensordict, self.num_envs))
+        return tensordict_reset.set(keys.OBSERVATION, state.observation)
 
     def transform_observation_spec(self, observation_spec: Composite) -> Composite:
         observation_spec[keys.OBSERVATION] = Unbounded(shape=(self.num_envs, self.size), dtype=torch.float32)

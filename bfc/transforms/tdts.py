@@ -16,7 +16,7 @@ import torch
 from tensordict import TensorDictBase
 
 from bfc import keys
-from bfc.transforms._base import BatchedTransform, check, reset_mask
+from bfc.transforms._base import BatchedTransform, StepState, check, reset_mask
 
 
 class TimeDependentTerminalState(BatchedTransform):
@@ -37,7 +37,7 @@ class TimeDependentTerminalState(BatchedTransform):
         self.register_buffer("inside_steps", torch.zeros(num_envs, dtype=torch.long))
         self.register_buffer("fired", torch.zeros((), dtype=torch.long))  # TDT events so far (train/tdts_fired)
 
-    def advance(self, position: torch.Tensor, goal: torch.Tensor) -> torch.Tensor:
+    def tick(self, position: torch.Tensor, goal: torch.Tensor) -> torch.Tensor:
         """One control step of the timers from the true position and the goal (N, 3) each:
         (N,) bool, the envs whose time-dependent terminal state fires now."""
         inside = ((position - goal).abs() <= self.zeta).all(-1)
@@ -46,23 +46,27 @@ class TimeDependentTerminalState(BatchedTransform):
         self.fired += fire.sum()
         return fire
 
-    def restart(self, mask: torch.Tensor) -> None:
+    def advance(self, state: StepState) -> None:
+        """A firing ends the episode: `truncated` (or `terminated`, `as_terminal`)."""
+        fire = self.tick(state.position, state.goal)
+        if self.as_terminal:
+            state.terminated = state.terminated | fire
+        else:
+            state.truncated = state.truncated | fire
+
+    def restart(self, state: StepState, mask: torch.Tensor) -> None:
         """The timers of the envs in `mask` (N,) start again (their episode restarts)."""
         self.inside_steps.masked_fill_(mask, 0)
 
-    @property
-    def flag(self) -> str:
-        """The done entry a firing sets beside `"done"`: terminated or truncated (`as_terminal`)."""
-        return keys.TERMINATED if self.as_terminal else keys.TRUNCATED
-
     def _step(self, tensordict: TensorDictBase, next_tensordict: TensorDictBase) -> TensorDictBase:
-        fire = self.advance(next_tensordict.get(keys.POSITION), next_tensordict.get(keys.GOAL))
-        if bool(fire.any()):
-            flag = fire.unsqueeze(-1)
-            next_tensordict.set(self.flag, next_tensordict.get(self.flag) | flag)
-            next_tensordict.set(keys.DONE, next_tensordict.get(keys.DONE) | flag)
-        return next_tensordict
+        n, nxt = self.num_envs, next_tensordict
+        state = StepState(position=nxt.get(keys.POSITION), goal=nxt.get(keys.GOAL))
+        state.terminated, state.truncated = nxt.get(keys.TERMINATED).reshape(n), nxt.get(keys.TRUNCATED).reshape(n)
+        self.advance(state)
+        nxt.set(keys.TERMINATED, state.terminated.unsqueeze(-1))
+        nxt.set(keys.TRUNCATED, state.truncated.unsqueeze(-1))
+        return nxt.set(keys.DONE, nxt.get(keys.DONE) | (state.terminated | state.truncated).unsqueeze(-1))
 
     def _reset(self, tensordict: TensorDictBase, tensordict_reset: TensorDictBase) -> TensorDictBase:
-        self.restart(reset_mask(tensordict, self.num_envs))
+        self.restart(StepState(), reset_mask(tensordict, self.num_envs))
         return tensordict_reset

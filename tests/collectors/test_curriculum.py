@@ -9,6 +9,7 @@ from bfc import keys
 from bfc.collectors.curriculum import Curriculum
 from bfc.factory import find_transform, make_env
 from bfc.transforms import ActionDelay, JumpingDistribution, ObservationDelay
+from bfc.transforms.pipeline import StepState
 from tests.training.helpers import compose_cfg
 
 WIDE = [
@@ -108,8 +109,8 @@ def test_delays_grow_in_with_the_curriculum_unless_told_not_to(grow):
     mask = torch.ones(64, dtype=torch.bool)
 
     def drawn():
-        obs_delay.restart(mask, torch.zeros(64, 18))
-        act_delay.restart_at_hover(mask)
+        obs_delay.refill(mask, torch.zeros(64, 18))
+        act_delay.restart(StepState(), mask)
         return obs_delay.delay.min().item(), obs_delay.delay.max().item(), act_delay.delay.unique().tolist()
 
     assert drawn() == ((0, 0, [0]) if grow else (2, 6, [3]))

@@ -1,70 +1,12 @@
-"""The fused collector gives TorchRL's Collector's batches, bit for bit, on the same env and seed."""
+"""The fused collector as training runs it (its batches equal TorchRL's Collector's: tests/test_pipeline.py)."""
 
 import pytest
 import torch
-from torchrl.envs import TransformedEnv
 
 from bfc.agent import PolicySpec
-from bfc.collectors import FusedCollector, make_collector
+from bfc.collectors import make_collector
 from bfc.config import compose
 from bfc.factory import make_env
-
-
-def collect(kind: str, overrides, batches: int = 8, seed: int = 3):
-    cfg = compose(["env.num_envs=24", "env.episode_seconds=0.2", *overrides])
-    env = make_env(cfg, seed=seed)
-    torch.manual_seed(seed)
-    net = PolicySpec.from_config(cfg).make_net()
-    with torch.no_grad():  # spread the actions: some drones crash, some hover to TDTS, episodes end all the time
-        net.log_std.fill_(-0.5)
-    fpb = 24 * 8
-    collector = make_collector(env, net, fpb, fpb * batches, kind=kind)
-    out = [b.clone() for b in collector]
-    collector.shutdown()
-    state = env.state_dict()
-    env.close()
-    return out, state
-
-
-@pytest.mark.parametrize(
-    "overrides",
-    [
-        [],  # the default: JD at any attitude, CSS, TDTS (truncated), randomisation, the integral
-        ["extras=none", "noise.kind=gaussian", "noise.std=0.02"],  # the paper's BFC, noise drawn at resets too
-        ["extras=none", "noise.kind=ou", "tdts.as_terminal=true", "css.enabled=false"],
-        ["+preset=paper", "+ablation=jd_tdts"],  # 250 Hz, odometry in, the speed map
-        # late odometry and commands, drawn per env at each reset, beside biased noise
-        ["latency.observation_steps=[0,3]", "latency.action_steps=[1,2]", "noise.kind=gaussian", "noise.bias=0.02"],
-    ],
-)
-def test_fused_batches_equal_torchrl_collectors(overrides):
-    fused, fused_state = collect("fused", overrides)
-    reference, reference_state = collect("torchrl", overrides)
-    ends = 0
-    for a, b in zip(fused, reference, strict=True):
-        assert a.batch_size == b.batch_size
-        assert set(a.keys(True, True)) == set(b.keys(True, True))
-        for key in b.keys(True, True):
-            assert a.get(key).dtype == b.get(key).dtype, key
-            assert torch.equal(a.get(key), b.get(key)), key
-        ends += int(b.get(("next", "done")).sum())
-    assert ends > 20  # resets happened, inside batches and at their edges
-    # and the env (physics, generators, every transform's buffers) ends in the same state
-    assert fused_state.keys() == reference_state.keys()
-    for key, value in reference_state.items():
-        if isinstance(value, torch.Tensor):
-            assert torch.equal(fused_state[key], value), key
-
-
-def test_the_fused_collector_refuses_a_transform_it_does_not_know():
-    from torchrl.envs import ObservationNorm
-
-    cfg = compose(["env.num_envs=4"])
-    env = make_env(cfg, seed=0)
-    env = TransformedEnv(env.base_env, env.transform.clone())
-    env.append_transform(ObservationNorm(loc=0.0, scale=1.0, in_keys=["odometry"]))
-    with pytest.raises(ValueError, match="ObservationNorm needs collector.kind=torchrl"):
-        FusedCollector(env, PolicySpec.from_config(cfg).make_net(), 8, 8)
 
 
 def test_the_collector_kind_is_checked_and_leaves_torchs_generator_alone():

@@ -179,40 +179,6 @@ def test_policy_files_fly_with_their_own_action_map(tmp_path):
 
 
 @pytest.mark.parametrize(
-    ("overrides", "noise"),
-    [
-        (["model.position_integral=true"], None),
-        (["model.action_map=speed"], None),
-        ([], {"kind": "ou", "std": 0.05, "elements": "position"}),
-    ],
-)
-def test_lean_flights_are_torchrls_bit_for_bit(overrides, noise):
-    """bfc's own actor flies through the lean loop (`_LeanFlight`): the same flights as TorchRL's
-    env.step gives, waypoints, crashes and odometry noise included."""
-    from bfc.agent import PolicySpec
-    from bfc.config import compose
-    from bfc.evaluation.flights import run_flights
-    from bfc.factory import make_flight_env
-
-    spec = PolicySpec.from_config(compose([*overrides, "model.actor_hidden=[32,32]"]))
-    env = make_flight_env(20, policy=spec, physics_dt=0.01, noise=noise, seed=0)
-    torch.manual_seed(0)
-    actor = spec.make_net()  # commands about hover
-    starts = protocol_starts(20, seed=3)
-    starts[:10, 3:5] = 0.0  # half level (they fly on), half tilted (most of them crash)
-    schedule = [(0, torch.tensor([0.0, 0.0, 1.5])), (40, torch.tensor([1.0, 0.0, 2.0]))]
-    env.set_seed(0)
-    lean = run_flights(env, actor, starts, 200, goal_schedule=schedule)
-    env.set_seed(0)
-    reference = run_flights(env, actor, starts, 200, goal_schedule=schedule, lean=False)
-    assert (~lean["alive"][:, -1]).any() and lean["alive"][:, -1].any()  # some crashed, some flew
-    for key in lean.keys(True, True):
-        if key != "controller_seconds":
-            assert torch.equal(lean.get(key), reference.get(key)), key
-    env.close()
-
-
-@pytest.mark.parametrize(
     ("overrides", "expected"),
     [([], 0.01), (["env.physics_dt=0.005"], 0.005), (["eval.physics_dt=0.002"], 0.002)],
 )

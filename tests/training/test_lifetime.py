@@ -60,15 +60,17 @@ def start(args: list[str]) -> subprocess.Popen:
     )
 
 
-def worker_of(process: subprocess.Popen) -> int:
+def worker_of(process: subprocess.Popen, child: str = "bfc-collector-0") -> int:
+    """The pid of the run's child process named `child` (bfc-collector-k, bfc-evaluator)."""
+
     def started():
         if process.poll() is not None:
             pytest.fail(
                 f"train.py ended ({process.returncode}) before its worker started: {process.stderr.read()[-3000:]}"
             )
-        return children(process.pid)
+        return [p for p in children(process.pid) if name(p) == child]
 
-    return wait_for(started, 120, "the collector worker's start")[0]
+    return wait_for(started, 120, f"the start of {child}")[0]
 
 
 pytestmark = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc")
@@ -91,9 +93,10 @@ def test_nothing_a_run_started_outlives_it_killed_with_sigkill(tmp_path, how):
     def collectors():
         if process.poll() is not None:
             pytest.fail(f"train.py ended ({process.returncode}): {process.stderr.read()[-3000:]}")
-        return [p for p in descendants(process.pid) if name(p) == "bfc-collector-0"]  # named in ps and top
+        named = {name(p) for p in descendants(process.pid)}  # named in ps and top
+        return {"bfc-collector-0", "bfc-evaluator"} <= named
 
-    wait_for(collectors, 120, "the collector worker's start")
+    wait_for(collectors, 120, "the start of the collector worker and the background evaluator")
     wait_for(lambda: list(tmp_path.rglob("tb/events*")), 120, "training")
     tree = descendants(process.pid)
     process.kill()
@@ -246,13 +249,16 @@ def test_stopping_evaluate_leaves_no_process_and_no_shared_memory(tmp_path, sim,
     assert leftovers() <= before
 
 
-def test_a_worker_that_crashes_is_named_with_its_signal(tmp_path):
-    """A segfault in MuJoCo's C code reads as SIGSEGV: the one line names it."""
+@pytest.mark.parametrize(
+    ("child", "called"), [("bfc-collector-0", "collector worker 0"), ("bfc-evaluator", "the background evaluator")]
+)
+def test_a_worker_that_crashes_is_named_with_its_signal(tmp_path, child, called):
+    """A segfault in MuJoCo's C code reads as SIGSEGV: the one line names it and the process."""
     process = start([f"hydra.run.dir={tmp_path}", *ASYNC])
-    worker = worker_of(process)
+    worker = worker_of(process, child)
     wait_for(lambda: list(tmp_path.glob("tb/events*")), 120, "training")
     os.kill(worker, signal.SIGSEGV)
-    _, err = process.communicate(timeout=60)
+    _, err = process.communicate(timeout=120)
     lines = [line for line in err.strip().splitlines() if "[INFO]" not in line]
     assert process.returncode == lifetime.FAILED and len(lines) == 1, err[-3000:]
-    assert f"error: collector worker 0 (pid {worker}) died: killed by SIGSEGV; " in lines[0]
+    assert f"error: {called} (pid {worker}) died: killed by SIGSEGV; " in lines[0]

@@ -207,3 +207,19 @@ def test_early_evaluations_come_every_early_interval_then_every_interval(tmp_pat
     early, plain = (load_policy(tmp_path / run / "policy_last.pt")[1] for run in ("early", "plain"))
     for a, b in zip(early.parameters(), plain.parameters(), strict=True):
         assert torch.equal(a, b)
+
+
+def test_evaluating_in_the_background_is_evaluating_in_place(tmp_path):
+    """eval.background: the same evaluations (in the same order), checkpoints and policy files as
+    flying them in the learner, whatever the two processes' timing."""
+    overrides = [*TINY, "collector.total_frames=4096", "eval.at_start=true", "collector.workers=1"]
+    for background in (True, False):
+        train(compose_cfg([*overrides, f"eval.background={background}"]), tmp_path / str(background))
+    a, b = (torch.load(tmp_path / run / "checkpoints" / "last.pt", weights_only=True) for run in ("True", "False"))
+    assert [h["frames"] for h in a["history"]] == [0, 1024, 2048, 3072, 4096]
+    assert_same_checkpoint(a, b)
+    for policy in ("policy.pt", "policy_last.pt"):
+        (sa, na), (sb, nb) = (load_policy(tmp_path / run / policy) for run in ("True", "False"))
+        assert sa == sb
+        for x, y in zip(na.state_dict().values(), nb.state_dict().values(), strict=True):
+            assert torch.equal(x, y), policy
