@@ -27,7 +27,7 @@ def digest(value) -> str:
 
     def walk(v):
         if isinstance(v, torch.Tensor):
-            h.update(v.detach().contiguous().view(torch.uint8).numpy().tobytes() if v.numel() else b"")
+            h.update(v.detach().reshape(-1).contiguous().view(torch.uint8).numpy().tobytes())
         elif isinstance(v, dict):
             for k in sorted(v, key=str):
                 h.update(str(k).encode())
