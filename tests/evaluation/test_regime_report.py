@@ -120,3 +120,21 @@ def test_finished_runs_are_kept_and_the_report_rebuilds_from_them_alone(tmp_path
     report = write_regime_report([tmp_path / "runs"], tmp_path / "out", protocol=protocol).read_text()
     assert "1 runs, 2.0M frames" in report and "| jd_css_tdts | 0 | 2,000,000 | 2,000,000 | finished |" in report
     assert (tmp_path / "out" / "learning_curves.png").stat().st_size > 10_000
+
+
+def test_the_kept_runs_are_committed_not_ignored():
+    """docs/report/paper_regime/runs/ is results the report rebuilds from on a fresh clone: git
+    must track it (a `runs/` ignore rule once kept every kept run out of the repository)."""
+    import shutil
+    import subprocess
+    from pathlib import Path
+
+    import pytest
+
+    root = Path(__file__).resolve().parents[2]
+    if shutil.which("git") is None or not (root / ".git").exists():
+        pytest.skip("not a git checkout")
+    kept = root / "docs" / "report" / "paper_regime" / "runs"
+    probe = [str(kept / "some_variant_seed0" / name) for name in ("summary.json", "policy_last.pt")]
+    ignored = subprocess.run(["git", "check-ignore", *probe], cwd=root, capture_output=True, text=True)
+    assert ignored.returncode == 1 and not ignored.stdout, ignored.stdout
