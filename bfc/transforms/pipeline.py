@@ -45,12 +45,11 @@ class StepState:
     def merge(self, mask: torch.Tensor, fresh: StepState) -> None:
         """The carried entries of the envs in `mask` from `fresh` (a restart's), the rest kept."""
         m = mask.unsqueeze(-1)
-        for name in ("truth", "odometry", "observation"):
-            new = getattr(fresh, name)
-            if new is not None:
-                setattr(self, name, torch.where(m, new, getattr(self, name)))
-        if self.truth is not None:
-            self.position, self.goal = self.truth[:, FLAT_POSITION], self.truth[:, FLAT_GOAL]
+        seen = {name: getattr(fresh, name) for name in ("odometry", "observation")}
+        seen = {name: torch.where(m, new, getattr(self, name)) for name, new in seen.items() if new is not None}
+        self.set_truth(torch.where(m, fresh.truth, self.truth))  # and its views
+        for name, value in seen.items():
+            setattr(self, name, value)
 
 
 class Stage:
