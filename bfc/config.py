@@ -17,6 +17,7 @@ its old spelling with one line naming the new one.
 from __future__ import annotations
 
 import dataclasses
+import difflib
 import functools
 import math
 import types
@@ -29,7 +30,7 @@ from hydra.core.config_store import ConfigStore
 from omegaconf import DictConfig, OmegaConf
 
 from bfc.checks import check
-from bfc.envs.params import GOAL, AirframeParams, RandomizeParams, RewardParams, StartParams, TerminationParams
+from bfc.envs.params import GOAL, AirframeParams, EnvParams, JDParams, RandomizeParams, RewardParams
 from bfc.keys import ACTIVATION_NAMES, OBSERVATION_SCALE_NAMES
 
 CONF_DIR = Path(__file__).resolve().parents[1] / "conf"  # the repository's Hydra configs
@@ -49,17 +50,16 @@ LOSS_IMPLEMENTATIONS = ("bfc", "torchrl")  # PPO's clipped step: bfc.training.pp
 
 
 @dataclass
-class EnvConfig:
+class EnvConfig(EnvParams):
+    """The env's parameters (bfc.envs.EnvParams) with the batch, the threads and the defaults the
+    default run trains with where they differ from the env's own."""
+
     num_envs: int = 256
-    control_hz: float = 100.0  # the paper flew 250 Hz; 100 Hz learns faster and as well (docs/training.md)
-    # MuJoCo's step while training (s); null: one step per control step. evaluate.py's test flights
-    # always fly the reference simulator (0.002 s); docs/env.md, "Physics step"
-    physics_dt: float | None = None
-    episode_seconds: float = 5.0
-    goal: list[float] = field(default_factory=lambda: list(GOAL))
-    start_motors: str = "rest"
     num_threads: int | None = None  # MuJoCo rollout threads; None = all cores
-    airframe: AirframeParams = field(default_factory=AirframeParams)
+    # MuJoCo's step while training (s); null: one step per control step. evaluate.py's test flights
+    # always fly the reference simulator (0.002 s); docs/env.md, "Physics step". (The paper flew
+    # 250 Hz; the control rate's 100 Hz learns faster and as well: docs/training.md.)
+    physics_dt: float | None = None
     # a fifth of the env's body-rate penalty: fast flips recover from upside down (extras=none: 0.005);
     # a precision bonus 3 cm wide, not 10: the hover within a millimetre, and within 1 cm on a noisy
     # estimate (docs/training.md, "Latency in training"; extras=none and +preset=prompt: 0.1)
@@ -70,29 +70,23 @@ class EnvConfig:
             external_force=1.0, mass=(0.7, 1.3), inertia=(1.0, 1.5), motor_constant=(0.8, 1.2), motor_lag=(1.0, 3.0)
         )
     )
-    termination: TerminationParams = field(default_factory=TerminationParams)
-    start: StartParams = field(default_factory=StartParams)
 
 
 @dataclass
-class JDConfig:
+class JDConfig(JDParams):
     """In-air starts at any attitude, thrown and spinning, many upside down; p(t) falls from p0 to
-    p_end over decay_frames (extras=none: the paper's +-60 deg at rest, p falling to 0)."""
+    p_end over decay_frames (extras=none: the paper's +-60 deg at rest, p falling to 0; the
+    paper's values are bfc.envs.JDParams' defaults)."""
 
     enabled: bool = True
-    p0: float = 1.0
     p_end: float = 0.75  # p at decay_frames and after (the paper: 0)
     decay_frames: int | None = None  # None: collector.total_frames, so p reaches p_end as training ends
-    schedule: str = "linear"  # linear | cosine | constant
-    z_range: list[float] = field(default_factory=lambda: [0.5, 3.0])
-    roll_range: list[float] = field(default_factory=lambda: [-180.0, 180.0])  # degrees (paper: +-60)
-    pitch_range: list[float] = field(default_factory=lambda: [-90.0, 90.0])  # (paper: +-60)
-    yaw_range: list[float] = field(default_factory=lambda: [-180.0, 180.0])
+    roll_range: tuple[float, float] = (-180.0, 180.0)  # degrees (paper: +-60)
+    pitch_range: tuple[float, float] = (-90.0, 90.0)  # (paper: +-60)
     # thrown and spun: with a late estimate a policy must learn to catch these (before: +-1, +-115)
-    velocity_range: list[float] = field(default_factory=lambda: [-3.0, 3.0])  # m/s, per axis (paper: 0)
-    angular_velocity_range: list[float] = field(default_factory=lambda: [-230.0, 230.0])  # deg/s, per axis
+    velocity_range: tuple[float, float] = (-3.0, 3.0)  # m/s, per axis (paper: 0)
+    angular_velocity_range: tuple[float, float] = (-230.0, 230.0)  # deg/s, per axis
     inverted_share: float = 0.6  # of the right-way-up air starts, turned upside down (x curriculum progress)
-    inverted_at_rest: float = 0.0  # of those upside-down starts, released at rest (no velocity, no body rates)
     inverted_spread: float = 0.5  # their roll, pitch x this before the turn (with the curriculum): nearer 180 deg
 
 
@@ -492,7 +486,9 @@ def _unknown_message(key: str, where: str, allowed, config_name: str) -> str:
         return f"{key} has moved: it is {moved} now"
     groups = GROUPS[config_name]
     hint = f"; config groups: {', '.join(f'+{g}=...' for g in groups)}" if groups and "." not in key else ""
-    return f"unknown config key {key!r}; {where} has: {', '.join(allowed)}{hint}"
+    close = difflib.get_close_matches(key.rsplit(".", 1)[-1], list(allowed), n=1)
+    guess = f" (did you mean {key.rsplit('.', 1)[0] + '.' if '.' in key else ''}{close[0]}?)" if close else ""
+    return f"unknown config key {key!r}{guess}; {where} has: {', '.join(allowed)}{hint}"
 
 
 def config_groups() -> dict[str, list[str]]:

@@ -14,7 +14,10 @@ training, a policy file's in a flight.
 
 from __future__ import annotations
 
+import math
 import zlib
+from dataclasses import dataclass
+from typing import Any
 
 import torch
 from omegaconf import OmegaConf
@@ -25,7 +28,8 @@ from bfc import keys
 from bfc.agent import PolicySpec
 from bfc.checks import check
 from bfc.config import jd_decay_frames
-from bfc.envs import REFERENCE_PHYSICS_DT, AirframeParams, QuadrotorEnv
+from bfc.envs import REFERENCE_PHYSICS_DT, AirframeParams, EnvParams, JDParams, QuadrotorEnv
+from bfc.envs.params import as_params, params_from
 from bfc.transforms import (
     ActionDelay,
     ControlledStartingState,
@@ -43,35 +47,26 @@ def _plain(node):
     return OmegaConf.to_container(node, resolve=True) if OmegaConf.is_config(node) else node
 
 
+def env_params(cfg, airframe: dict | None = None, randomize: bool = True) -> EnvParams:
+    """The config's `env` section as the env's EnvParams; `airframe` overrides AirframeParams
+    fields of the simulated body only; randomize=False leaves `env.randomize` (training-time
+    domain randomisation) off."""
+    e = _plain(cfg.env)
+    flown = {**(e.get("airframe") or {}), **dict(airframe or {})}
+    return params_from(EnvParams, e, airframe=flown, randomize=e.get("randomize") if randomize else None)
+
+
 def make_base_env(
     cfg, num_envs: int | None = None, airframe: dict | None = None, randomize: bool = True
 ) -> QuadrotorEnv:
-    """The base env; `airframe` overrides AirframeParams fields of the simulated body only;
-    randomize=False leaves `env.randomize` (training-time domain randomisation) off."""
+    """The base env of `cfg` (`env_params`), `num_envs` of them (None: env.num_envs)."""
     e = cfg.env
-    flown = _plain(e.airframe) or {}
-    if airframe:
-        flown = {**flown, **dict(airframe)}
-    return QuadrotorEnv(
-        int(num_envs or e.num_envs),
-        control_hz=e.control_hz,
-        physics_dt=physics_step(cfg),
-        episode_seconds=e.episode_seconds,
-        goal=tuple(e.goal),
-        airframe=flown,
-        reward=_plain(e.reward),
-        termination=_plain(e.termination),
-        start=_plain(e.start),
-        randomize=_plain(e.randomize) if randomize else None,
-        start_motors=e.start_motors,
-        num_threads=e.num_threads,
-    )
+    return QuadrotorEnv(int(num_envs or e.num_envs), env_params(cfg, airframe, randomize), num_threads=e.num_threads)
 
 
 def physics_step(cfg) -> float:
     """MuJoCo's step for `cfg`: env.physics_dt, or one step per control step when it is null."""
-    e = cfg.env
-    return float(e.physics_dt) if e.physics_dt is not None else 1.0 / float(e.control_hz)
+    return env_params(cfg).physics_step
 
 
 def make_noise(noise, num_envs: int, dt: float):
@@ -122,25 +117,7 @@ def make_env(
         t = cfg.tdts
         ts.append(TimeDependentTerminalState(n, t.zeta, t.threshold_seconds, dt=dt, as_terminal=t.as_terminal))
     if samplers and cfg.jd.enabled:
-        j = cfg.jd
-        ts.append(
-            JumpingDistribution(
-                n,
-                p0=j.p0,
-                p_end=j.p_end,
-                decay_frames=jd_decay_frames(cfg),
-                schedule=j.schedule,
-                z_range=tuple(j.z_range),
-                roll_range=tuple(j.roll_range),
-                pitch_range=tuple(j.pitch_range),
-                yaw_range=tuple(j.yaw_range),
-                velocity_range=tuple(j.velocity_range),
-                angular_velocity_range=tuple(j.angular_velocity_range),
-                inverted_share=j.inverted_share,
-                inverted_at_rest=j.inverted_at_rest,
-                inverted_spread=j.inverted_spread,
-            )
-        )
+        ts.append(JumpingDistribution(n, params_from(JDParams, _plain(cfg.jd), decay_frames=jd_decay_frames(cfg))))
     if samplers and cfg.css.enabled:
         c = cfg.css
         ts.append(
@@ -178,55 +155,88 @@ def trained_rate(trained_hz: float, control_hz=None, what="this policy") -> floa
     return trained_hz
 
 
+FLIGHT_MARGIN = 1.0  # s: a flight's env runs its episodes this much longer, so no flight truncates
+
+
+@dataclass
+class FlightConditions:
+    """What a flight from given starts flies through, beside its controller and its goal: its
+    length, the rate and MuJoCo's step, the flown body (its mismatch from the nominal one the
+    controller knows), the wind, and what reaches the controller (noise, latency).
+
+    seconds: the flight's length; control_hz: the rate of a controller without one of its own (a
+    policy file is always flown at its trained rate); physics_dt: MuJoCo's step, the reference by
+    default; airframe: AirframeParams fields of the flown body that differ from the nominal one
+    (model mismatch); nominal: the nominal airframe's fields for a controller without one (the
+    Hummingbird when None; a policy flies its own); external_force: a constant force in newtons,
+    world frame, (3,) or one per start (n, 3); noise: a `noise` config section, corrupting only
+    what the controller sees; seed: the flight's random streams (noise, latency draws);
+    observation_delay / action_delay: seconds of latency (bfc.transforms.latency), in whole
+    control steps rounded down; start_motors: "rest" or "hover" at release.
+    """
+
+    seconds: float = 10.0
+    control_hz: float | None = None
+    physics_dt: float = REFERENCE_PHYSICS_DT
+    airframe: dict | None = None
+    nominal: dict | None = None
+    external_force: Any = None
+    noise: Any = None
+    seed: int = 0
+    observation_delay: float = 0.0
+    action_delay: float = 0.0
+    start_motors: str = "rest"
+
+    def __post_init__(self) -> None:
+        check(_number(self.seconds) and self.seconds > 0, "seconds", "> 0", self.seconds)
+        for name in ("observation_delay", "action_delay"):
+            v = getattr(self, name)
+            check(_number(v) and v >= 0, name, ">= 0 seconds", v)
+
+
+def _number(v) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+
+
 def make_flight_env(
     num_envs: int,
+    flight: FlightConditions | dict | None = None,
     *,
     policy: PolicySpec | None = None,
-    control_hz: float | None = None,
-    physics_dt: float = REFERENCE_PHYSICS_DT,
-    seconds: float = 11.0,
-    airframe: dict | None = None,
-    nominal: dict | None = None,
-    noise=None,
     num_threads: int | None = None,
-    seed: int | None = None,
-    observation_delay: float = 0.0,
-    action_delay: float = 0.0,
-    start_motors: str = "rest",
+    **changes,
 ) -> BFCEnv:
-    """An env for flights from given starts (`GivenStarts`): no samplers, no randomisation, no
-    episode statistics, the task's termination, episodes of `seconds`.
+    """An env for flights from given starts (`GivenStarts`) in `flight`'s conditions (a
+    FlightConditions, or a mapping of its fields; `changes`: any of its fields by keyword): no
+    samplers, no randomisation, no episode statistics, the task's termination.
 
     policy: a PolicySpec, whose observation and action maps the env gets and whose control rate
     and nominal airframe it flies (a policy file is always flown as it was trained); None: no
     policy maps, at `control_hz` (controllers read `"odometry"` and command rad/s).
-    airframe: AirframeParams fields of the flown body that differ from the nominal one (model
-    mismatch); nominal: the nominal airframe's fields for a flight without a policy (the
-    Hummingbird when None; a policy flies its own); noise: a `noise` config section, corrupting
-    only what the controller sees;
-    observation_delay / action_delay: seconds of latency (bfc.transforms.latency), in whole control
-    steps (rounded down); start_motors: "rest" or "hover" at release.
     """
-    rate = trained_rate(policy.control_hz, control_hz) if policy is not None else control_hz
+    f = as_params(FlightConditions, flight, **changes)
+    rate = trained_rate(policy.control_hz, f.control_hz) if policy is not None else f.control_hz
     check(rate is not None, "control_hz", "given for a flight without a policy", rate)
-    nominal = policy.airframe if policy is not None else dict(nominal or {})
-    base = QuadrotorEnv(
-        int(num_envs),
+    nominal = policy.airframe if policy is not None else dict(f.nominal or {})
+    params = EnvParams(
         control_hz=float(rate),
-        physics_dt=float(physics_dt),
-        episode_seconds=float(seconds),
-        airframe={**nominal, **dict(airframe or {})},
-        num_threads=num_threads,
-        start_motors=start_motors,
+        physics_dt=float(f.physics_dt),
+        episode_seconds=float(f.seconds) + FLIGHT_MARGIN,
+        airframe={**nominal, **dict(f.airframe or {})},
+        start_motors=f.start_motors,
     )
+    base = QuadrotorEnv(int(num_envs), params, num_threads=num_threads)
     steps = {
-        "observation_steps": int(observation_delay / base.dt + 1e-6),
-        "action_steps": int(action_delay / base.dt + 1e-6),
+        "observation_steps": int(f.observation_delay / base.dt + 1e-6),
+        "action_steps": int(f.action_delay / base.dt + 1e-6),
     }
     delays = _delays(steps, base.num_envs, AirframeParams(**nominal).hover_speed)
-    return _assemble(
-        base, [], policy=policy, noise=noise, given_starts=True, statistics=False, seed=seed, delays=delays
+    env = _assemble(
+        base, [], policy=policy, noise=f.noise, given_starts=True, statistics=False, seed=f.seed, delays=delays
     )
+    if f.external_force is not None:
+        base.set_external_force(f.external_force)
+    return env
 
 
 def _assemble(base: QuadrotorEnv, ts: list, *, policy, noise, given_starts, statistics, seed, delays=()) -> BFCEnv:

@@ -4,12 +4,24 @@ The parameter dataclasses import nothing heavy; `QuadrotorEnv` (torch, TorchRL, 
 imported on first use, so that a config can be checked before those load (bfc.config).
 """
 
-from bfc.envs.params import GOAL, AirframeParams, RandomizeParams, RewardParams, StartParams, TerminationParams
+from bfc.envs.params import (
+    GOAL,
+    REFERENCE_PHYSICS_DT,
+    AirframeParams,
+    EnvParams,
+    JDParams,
+    RandomizeParams,
+    RewardParams,
+    StartParams,
+    TerminationParams,
+)
 
 __all__ = [
     "GOAL",
     "REFERENCE_PHYSICS_DT",
     "AirframeParams",
+    "EnvParams",
+    "JDParams",
     "QuadrotorEnv",
     "RandomizeParams",
     "RewardParams",
@@ -19,7 +31,7 @@ __all__ = [
 
 
 def __getattr__(name: str):
-    if name in ("QuadrotorEnv", "REFERENCE_PHYSICS_DT"):
+    if name == "QuadrotorEnv":
         from bfc.envs import quadrotor
 
         return getattr(quadrotor, name)

@@ -10,11 +10,37 @@ checked without importing torch or MuJoCo (a bad value on the command line fails
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, fields
+from dataclasses import dataclass, field, fields
 
 from bfc.checks import check as _check
 
 GOAL = (0.0, 0.0, 1.5)  # m: the paper's hover goal, every flight's and training's default
+REFERENCE_PHYSICS_DT = 0.002  # s: the simulator every evaluation flies (training may step coarser)
+
+
+def as_params(cls, value, **changes):
+    """`value` as a `cls` params dataclass (None: the defaults, a mapping: its fields), with
+    `changes` to some of its fields; an unknown field fails in one line naming the allowed ones."""
+    if value is None and not changes:
+        return cls()
+    if isinstance(value, cls) and not changes:
+        return value
+    if isinstance(value, cls):
+        value = {f.name: getattr(value, f.name) for f in fields(cls)}
+    try:
+        return cls(**{**dict(value or {}), **changes})
+    except TypeError as err:
+        allowed = ", ".join(f.name for f in fields(cls))
+        raise ValueError(f"{cls.__name__}: {err}; allowed keys: {allowed}") from None
+
+
+def params_from(cls, section, **changes):
+    """A `cls` from the fields of a config section (a mapping or a dataclass; keys `cls` does
+    not have are left out: a schema section extends its params with run-level keys) and `changes`."""
+    get = section.get if hasattr(section, "get") else lambda name, default: getattr(section, name, default)
+    missing = object()
+    values = {f.name: get(f.name, missing) for f in fields(cls)}
+    return as_params(cls, {k: v for k, v in values.items() if v is not missing}, **changes)
 
 
 # Rotor layouts: the unit direction of each rotor from the centre, in bfc's motor order (counter-
@@ -289,3 +315,106 @@ class RandomizeParams:
 
 
 AIRFRAME_RANGES = ("mass", "inertia", "motor_constant", "motor_lag")
+
+
+START_MOTORS = ("rest", "hover")
+
+
+@dataclass
+class EnvParams:
+    """What one `QuadrotorEnv` flies, beside its batch and threads: the control rate and MuJoCo's
+    step, the episode, the goal, the motors at release, the airframe and the task's parameters.
+    The config's `env` section extends it (bfc.config.EnvConfig), so each default is written once."""
+
+    control_hz: float = 100.0
+    # MuJoCo's step (s); None: one step per control step
+    physics_dt: float | None = REFERENCE_PHYSICS_DT
+    episode_seconds: float = 5.0
+    goal: tuple[float, float, float] = GOAL
+    start_motors: str = "rest"  # rest | hover: the rotors at release
+    airframe: AirframeParams = field(default_factory=AirframeParams)
+    reward: RewardParams = field(default_factory=RewardParams)
+    termination: TerminationParams = field(default_factory=TerminationParams)
+    start: StartParams = field(default_factory=StartParams)
+    randomize: RandomizeParams = field(default_factory=RandomizeParams)
+
+    def __post_init__(self) -> None:
+        _check(_positive(self.control_hz), "env.control_hz", "> 0", self.control_hz)
+        if self.physics_dt is not None:
+            allowed = "> 0 (or null: one step per control step)"
+            _check(_positive(self.physics_dt), "env.physics_dt", allowed, self.physics_dt)
+            substeps = round(1.0 / (self.control_hz * self.physics_dt))
+            _check(
+                substeps >= 1 and abs(substeps * self.physics_dt * self.control_hz - 1.0) < 1e-6,
+                "env.control_hz",
+                f"such that 1/control_hz is a whole number of physics steps of {self.physics_dt} s",
+                self.control_hz,
+            )
+        _check(_positive(self.episode_seconds), "env.episode_seconds", "> 0", self.episode_seconds)
+        goal = tuple(self.goal) if isinstance(self.goal, (tuple, list)) else ()
+        ok = len(goal) == 3 and all(_finite(v) for v in goal)
+        _check(ok, "env.goal", "3 finite numbers (x, y, z)", self.goal)
+        self.goal = tuple(float(v) for v in goal)
+        _check(self.start_motors in START_MOTORS, "env.start_motors", "'rest' or 'hover'", self.start_motors)
+        self.airframe = as_params(AirframeParams, self.airframe)
+        self.reward = as_params(RewardParams, self.reward)
+        self.termination = as_params(TerminationParams, self.termination)
+        self.start = as_params(StartParams, self.start)
+        self.randomize = as_params(RandomizeParams, self.randomize)
+
+    @property
+    def physics_step(self) -> float:
+        """MuJoCo's step (s): `physics_dt`, or one step per control step when it is None."""
+        return float(self.physics_dt) if self.physics_dt is not None else 1.0 / float(self.control_hz)
+
+
+JD_SCHEDULES = ("linear", "cosine", "constant")
+
+
+@dataclass
+class JDParams:
+    """The Jumping Distribution's starts (paper sec. 4.1; bfc.transforms.jd), the paper's values by
+    default: in the air with probability p(t), falling from p0 to p_end over decay_frames, at an
+    attitude within +-60 deg, at rest. Ranges are [low, high] in m, deg, m/s and deg/s. Here, beside
+    the task's own starts, so that the config (bfc.config.JDConfig) extends it without torch."""
+
+    p0: float = 1.0
+    p_end: float = 0.0
+    decay_frames: int | None = 10_000_000  # None: the run's collector.total_frames (bfc.config)
+    schedule: str = "linear"  # linear | cosine | constant
+    z_range: tuple[float, float] = (0.5, 3.0)
+    roll_range: tuple[float, float] = (-60.0, 60.0)
+    pitch_range: tuple[float, float] = (-60.0, 60.0)
+    yaw_range: tuple[float, float] = (-180.0, 180.0)
+    velocity_range: tuple[float, float] = (0.0, 0.0)  # per axis
+    angular_velocity_range: tuple[float, float] = (0.0, 0.0)  # per axis
+    inverted_share: float = 0.0  # of the right-way-up air starts, turned upside down
+    inverted_at_rest: float = 0.0  # of those upside-down starts, released at rest
+    inverted_spread: float = 1.0  # their roll, pitch x this before the turn: nearer 180 deg
+
+    def __post_init__(self) -> None:
+        for name in ("p0", "p_end", "inverted_share", "inverted_at_rest"):
+            v = getattr(self, name)
+            _check(_finite(v) and 0.0 <= v <= 1.0, f"jd.{name}", "in [0, 1]", v)
+            setattr(self, name, float(v))
+        v = self.inverted_spread
+        _check(_finite(v) and 0.0 < v <= 1.0, "jd.inverted_spread", "in (0, 1]", v)
+        self.inverted_spread = float(v)
+        v = self.decay_frames
+        ok = v is None or (isinstance(v, int) and not isinstance(v, bool) and v >= 0)
+        _check(ok, "jd.decay_frames", "an integer >= 0 (or null: the run's total frames)", v)
+        _check(self.schedule in JD_SCHEDULES, "jd.schedule", f"one of {JD_SCHEDULES}", self.schedule)
+        for name in ("z_range", "roll_range", "pitch_range", "yaw_range", "velocity_range", "angular_velocity_range"):
+            r = getattr(self, name)
+            ok = isinstance(r, (tuple, list)) and len(r) == 2 and all(_finite(x) for x in r) and r[0] <= r[1]
+            _check(ok, f"jd.{name}", "a pair [low, high] with low <= high", r)
+            setattr(self, name, (float(r[0]), float(r[1])))
+        _check(self.z_range[0] > 0, "jd.z_range", "above the ground (low > 0)", self.z_range)
+
+
+def _finite(v) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+
+
+def _positive(v) -> bool:
+    return _finite(v) and v > 0

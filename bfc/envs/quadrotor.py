@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import math
 import os
-from dataclasses import fields
 from importlib import resources
 
 import mujoco
@@ -33,18 +32,15 @@ from bfc import keys
 from bfc.checks import check as _check
 from bfc.envs.params import (  # the task's parameters live with the airframe's: no torch to check a config
     AIRFRAME_RANGES,
-    GOAL,
+    REFERENCE_PHYSICS_DT,
     AirframeParams,
-    RandomizeParams,
-    RewardParams,
-    StartParams,
-    TerminationParams,
+    EnvParams,
+    as_params,
 )
 from bfc.envs.rotations import euler_to_quat
 
 # Layout of MuJoCo's mjSTATE_FULLPHYSICS vector for this model: time, qpos (3 + 4), qvel (3 + 3).
 _POS, _QUAT, _LINVEL, _ANGVEL = slice(1, 4), slice(4, 8), slice(8, 11), slice(11, 14)
-REFERENCE_PHYSICS_DT = 0.002  # s: the simulator every evaluation flies (training may step coarser)
 BODY = "quadrotor"  # the asset's free body
 
 # Layout of the one float32 buffer (N, 30) a step writes (`QuadrotorEnv.advance`); every output
@@ -78,18 +74,6 @@ def _body_xy_velocity(phys: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     # t = 2 (u x v) with u = -(x, y, z), the conjugate's vector part; result v + w t + u x t.
     tx, ty, tz = 2 * (z * vy - y * vz), 2 * (x * vz - z * vx), 2 * (y * vx - x * vy)
     return vx + w * tx + (z * ty - y * tz), vy + w * ty + (x * tz - z * tx)
-
-
-def _as(cls, value):
-    if value is None:
-        return cls()
-    if isinstance(value, cls):
-        return value
-    try:
-        return cls(**dict(value))
-    except TypeError as err:
-        allowed = ", ".join(f.name for f in fields(cls))
-        raise ValueError(f"{cls.__name__}: {err}; allowed keys: {allowed}") from None
 
 
 def build_model(airframe: AirframeParams, physics_dt: float) -> mujoco.MjModel:
@@ -130,64 +114,40 @@ class QuadrotorEnv(EnvBase):
     def __init__(
         self,
         num_envs: int = 1,
+        params: EnvParams | dict | None = None,
         *,
-        control_hz: float = 100.0,
-        physics_dt: float = REFERENCE_PHYSICS_DT,
-        episode_seconds: float = 5.0,
-        goal: tuple[float, float, float] = GOAL,
-        airframe: AirframeParams | dict | None = None,
-        reward: RewardParams | dict | None = None,
-        termination: TerminationParams | dict | None = None,
-        start: StartParams | dict | None = None,
-        randomize: RandomizeParams | dict | None = None,
-        start_motors: str = "rest",
         num_threads: int | None = None,
         seed: int | None = None,
         device: str = "cpu",
+        **changes,
     ):
+        """params: an EnvParams (a mapping of its fields; None: the defaults); `changes`: any of
+        its fields by keyword, e.g. `QuadrotorEnv(4, start_motors="hover")`. num_threads: MuJoCo's
+        rollout threads (None: all cores); seed: the env's generator (starts, randomisation)."""
+        p = self.params = as_params(EnvParams, params, **changes)
         _check(isinstance(num_envs, int) and num_envs >= 1, "env.num_envs", "an integer >= 1", num_envs)
-        _check(control_hz > 0, "env.control_hz", "> 0", control_hz)
-        _check(physics_dt > 0, "env.physics_dt", "> 0", physics_dt)
-        substeps = round(1.0 / (control_hz * physics_dt))
-        _check(
-            substeps >= 1 and abs(substeps * physics_dt * control_hz - 1.0) < 1e-6,
-            "env.control_hz",
-            f"such that 1/control_hz is a whole number of physics steps of {physics_dt} s",
-            control_hz,
-        )
-        _check(episode_seconds > 0, "env.episode_seconds", "> 0", episode_seconds)
-        _check(
-            len(goal) == 3 and all(math.isfinite(float(v)) for v in goal),
-            "env.goal",
-            "3 finite numbers (x, y, z)",
-            goal,
-        )
-        _check(start_motors in ("rest", "hover"), "env.start_motors", "'rest' or 'hover'", start_motors)
         if num_threads is None:
             num_threads = os.cpu_count() or 1
         _check(isinstance(num_threads, int) and num_threads >= 1, "env.num_threads", "an integer >= 1", num_threads)
         super().__init__(device=device, batch_size=torch.Size([num_envs]))
 
         self.num_envs = num_envs
-        self.airframe = _as(AirframeParams, airframe)
-        self.reward_params = _as(RewardParams, reward)
-        self.termination = _as(TerminationParams, termination)
-        self.start_params = _as(StartParams, start)
-        self.randomize = _as(RandomizeParams, randomize)
+        self.airframe, self.reward_params, self.termination = p.airframe, p.reward, p.termination
+        self.start_params, self.randomize = p.start, p.randomize
         # How much of the `randomize` ranges is drawn from, in [0, 1]: a training curriculum
         # (bfc.collectors.curriculum) widens it from a start fraction to 1; ranges shrink towards 1
         # (the nominal airframe) and the wind towards 0. Set between batches, never mid-episode.
         self.randomize_scale = 1.0
-        self.control_hz = float(control_hz)
-        self.physics_dt = float(physics_dt)
-        self.substeps = substeps
+        self.control_hz, self.physics_dt = float(p.control_hz), p.physics_step
+        self.substeps = substeps = round(1.0 / (self.control_hz * self.physics_dt))
+        physics_dt = self.physics_dt
         self.dt = substeps * physics_dt
-        self.max_episode_steps = max(1, round(episode_seconds / self.dt))
+        self.max_episode_steps = max(1, round(p.episode_seconds / self.dt))
         self.hover_speed = self.airframe.hover_speed
         self.max_rotor_speed = self.airframe.max_rotor_speed
         self.ground_height = self.airframe.ground_height
         self.num_threads = num_threads
-        self.start_motors = start_motors
+        self.start_motors = p.start_motors
         self.physics_failures = 0  # envs whose state became non-finite (terminated and replaced)
 
         self.model = build_model(self.airframe, self.physics_dt)
@@ -217,7 +177,7 @@ class QuadrotorEnv(EnvBase):
         self._ang_acc_np = self._ang_acc.numpy()
         self._steps = torch.zeros(n, dtype=torch.long)
         self._steps_np = self._steps.numpy()
-        self._goal = torch.tensor(goal, dtype=torch.float32).expand(n, 3).clone()
+        self._goal = torch.tensor(p.goal, dtype=torch.float32).expand(n, 3).clone()
         # Per-env airframe multipliers (randomised per episode by `env.randomize`, else ones):
         # mass, inertia, motor constant, motor time constants. From them: the wrench gains (the
         # nominal body's mass and inertia over the flown one's), the thrust constant k_f and the

@@ -10,7 +10,7 @@ from bfc.evaluation.flights import run_flights
 from bfc.evaluation.judge import judge
 from bfc.evaluation.metrics import hover_error, hover_tilt
 from bfc.evaluation.protocol import protocol_starts
-from bfc.factory import make_flight_env, physics_step
+from bfc.factory import FlightConditions, make_flight_env, physics_step
 
 
 class ProtocolEvaluator:
@@ -24,14 +24,13 @@ class ProtocolEvaluator:
         e = cfg.eval
         # eval.physics_dt, or (null) the step training integrates with: validation flies the
         # simulator the policy learns in; the test flights of evaluate.py fly the reference step
-        self.env = make_flight_env(
-            e.num_starts,
-            policy=PolicySpec.from_config(cfg),
+        flight = FlightConditions(
+            seconds=e.seconds,
             physics_dt=physics_step(cfg) if e.physics_dt is None else e.physics_dt,
-            seconds=e.seconds + 1.0,
-            num_threads=cfg.env.num_threads,
             seed=e.validation_seed,
         )
+        policy = PolicySpec.from_config(cfg)
+        self.env = make_flight_env(e.num_starts, flight, policy=policy, num_threads=cfg.env.num_threads)
         self.starts = protocol_starts(e.num_starts, e.validation_seed)
         self.steps = round(e.seconds / self.env.base_env.dt)
         self.threshold, self.hold_seconds = e.threshold, e.hold_seconds

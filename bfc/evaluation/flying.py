@@ -11,9 +11,10 @@ from tensordict import TensorDict
 from tensordict.nn import TensorDictModuleBase
 
 from bfc.agent import load_policy
-from bfc.envs import GOAL, REFERENCE_PHYSICS_DT, AirframeParams
+from bfc.envs import GOAL, AirframeParams
+from bfc.envs.params import as_params
 from bfc.evaluation.flights import run_flights
-from bfc.factory import make_flight_env, trained_rate
+from bfc.factory import FlightConditions, make_flight_env, trained_rate
 
 
 def is_module(controller) -> bool:
@@ -52,50 +53,26 @@ def airframe_of(controller, default: AirframeParams | None = None) -> AirframePa
     return default or AirframeParams()
 
 
-def fly(
-    controller,
-    starts,
-    goal=GOAL,
-    seconds: float = 10.0,
-    noise=None,
-    seed: int = 0,
-    control_hz=None,
-    airframe: dict | None = None,
-    external_force=None,
-    physics_dt: float = REFERENCE_PHYSICS_DT,
-    observation_delay: float = 0.0,
-    action_delay: float = 0.0,
-    start_motors: str = "rest",
-    nominal: dict | None = None,
-) -> TensorDict:
-    """Fly all `starts` (n, 12) at once for `seconds`, never resetting mid-flight.
+def fly(controller, starts, goal=GOAL, flight: FlightConditions | dict | None = None, **changes) -> TensorDict:
+    """Fly all `starts` (n, 12) at once towards `goal`, never resetting mid-flight, in `flight`'s
+    conditions (a FlightConditions: the length, noise, mismatch, wind, latency ...; `changes`: any
+    of its fields by keyword, e.g. `fly("policy.pt", starts, seconds=5, noise={"kind": "ou"})`).
 
     controller: a policy.pt path (flown as its PolicySpec says: its maps, its control rate, its
     nominal airframe), an exported policy.onnx (flown by onnxruntime at its control rate), a
-    controller name registered in `CONTROLLERS`, or a TensorDictModule
-    reading `"odometry"`/`"goal"` and writing `"action"` in rad/s (flown at `control_hz`, default
-    250 Hz as in the paper).
-    goal: (x, y, z) or waypoints [(time_s, (x, y, z)), ...]. noise: a `noise` config section, e.g.
-    {"kind": "ou", "std": 0.05, "elements": "position"}; it corrupts only what the controller sees.
-    airframe: AirframeParams fields of the flown body, e.g. {"body_mass": 0.884} (model mismatch):
-    a classical controller keeps the nominal model it was built for, a policy its own maps.
-    external_force: a constant force in newtons, world frame, (3,) or one per start (n, 3).
-    physics_dt: MuJoCo's step, the reference 0.002 s by default, whatever step a policy was
-    trained with (its control rate is its own).
-    observation_delay / action_delay: seconds of latency, in whole control steps rounded down
-    (bfc.transforms.latency); start_motors: "rest" or "hover" at release.
-    nominal: the AirframeParams fields of the airframe a classical controller (or a module) flies
-    and is built for (the Hummingbird when None); a policy file flies its own.
+    controller name registered in `CONTROLLERS` (built for the nominal airframe, whatever body it
+    flies), or a TensorDictModule reading `"odometry"`/`"goal"` and writing `"action"` in rad/s
+    (flown at `control_hz`, default 250 Hz as in the paper).
+    goal: (x, y, z) or waypoints [(time_s, (x, y, z)), ...].
     Returns a TensorDict (n, T); see `run_flights`.
     """
     from bfc.controllers import CONTROLLERS
 
+    f = as_params(FlightConditions, flight, **changes)
     starts = torch.as_tensor(starts, dtype=torch.float32)
     if starts.ndim != 2 or starts.shape[1] != 12:
         raise ValueError(f"starts must have shape (n, 12), got {tuple(starts.shape)}")
-    if seconds <= 0:
-        raise ValueError(f"seconds must be > 0, got {seconds}")
-    spec, name = None, None
+    spec, name, control_hz, nominal = None, None, f.control_hz, f.nominal
     if isinstance(controller, (str, bytes)) and str(controller) in CONTROLLERS:
         name = str(controller)
     elif is_module(controller):
@@ -108,28 +85,13 @@ def fly(
     else:
         raise ValueError(f"controller must be {controller_kinds()}, got {controller!r}")
     rate = None if spec is not None and control_hz is None else float(control_hz or PROTOCOL_HZ)
-    env = make_flight_env(
-        starts.shape[0],
-        policy=spec,
-        control_hz=rate,
-        physics_dt=float(physics_dt),
-        seconds=seconds + 1.0,
-        airframe=airframe,
-        nominal=nominal,
-        noise=noise,
-        seed=seed,
-        observation_delay=observation_delay,
-        action_delay=action_delay,
-        start_motors=start_motors,
-    )
+    env = make_flight_env(starts.shape[0], f, policy=spec, control_hz=rate, nominal=nominal)
     try:
-        if external_force is not None:
-            env.base_env.set_external_force(external_force)
         if name is not None:  # built for the nominal airframe, whatever body it flies
             controller = CONTROLLERS[name](AirframeParams(**dict(nominal or {})), env.base_env.dt)
         first, schedule = _goal_schedule(goal, env.base_env.dt)
         env.base_env.set_goal(first)
-        return run_flights(env, controller, starts, round(seconds / env.base_env.dt), goal_schedule=schedule)
+        return run_flights(env, controller, starts, round(f.seconds / env.base_env.dt), goal_schedule=schedule)
     finally:
         env.close()
 

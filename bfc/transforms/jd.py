@@ -12,15 +12,8 @@ import math
 import torch
 from tensordict import TensorDictBase
 
+from bfc.envs.params import JDParams, as_params
 from bfc.transforms._base import StartSampler, StepState, check
-
-SCHEDULES = ("linear", "cosine", "constant")
-
-
-def _range(value, key: str) -> tuple[float, float]:
-    lo, hi = (float(v) for v in value)
-    check(math.isfinite(lo) and math.isfinite(hi) and lo <= hi, key, "a pair [low, high] with low <= high", value)
-    return lo, hi
 
 
 class JumpingDistribution(StartSampler):
@@ -29,45 +22,25 @@ class JumpingDistribution(StartSampler):
     Ranges are in metres, degrees, m/s and deg/s.
     """
 
-    def __init__(
-        self,
-        num_envs: int,
-        p0: float = 1.0,
-        p_end: float = 0.0,
-        decay_frames: int = 10_000_000,
-        schedule: str = "linear",
-        z_range=(0.5, 3.0),
-        roll_range=(-60.0, 60.0),
-        pitch_range=(-60.0, 60.0),
-        yaw_range=(-180.0, 180.0),
-        velocity_range=(0.0, 0.0),
-        angular_velocity_range=(0.0, 0.0),
-        inverted_share: float = 0.0,
-        inverted_at_rest: float = 0.0,
-        inverted_spread: float = 1.0,
-    ):
+    def __init__(self, num_envs: int, params: JDParams | dict | None = None, **changes):
+        """params: a JDParams (a mapping of its fields; None: the paper's values); `changes`: any
+        of its fields by keyword, e.g. `JumpingDistribution(n, p_end=0.5)`."""
         super().__init__(num_envs)
-        check(0.0 <= inverted_share <= 1.0, "jd.inverted_share", "in [0, 1]", inverted_share)
-        check(0.0 <= inverted_at_rest <= 1.0, "jd.inverted_at_rest", "in [0, 1]", inverted_at_rest)
-        check(0.0 < inverted_spread <= 1.0, "jd.inverted_spread", "in (0, 1]", inverted_spread)
-        check(0.0 <= p0 <= 1.0, "jd.p0", "in [0, 1]", p0)
-        check(0.0 <= p_end <= 1.0, "jd.p_end", "in [0, 1]", p_end)
-        check(isinstance(decay_frames, int) and decay_frames >= 0, "jd.decay_frames", "an integer >= 0", decay_frames)
-        check(schedule in SCHEDULES, "jd.schedule", f"one of {SCHEDULES}", schedule)
-        self.p0, self.p_end, self.decay_frames, self.schedule = float(p0), float(p_end), int(decay_frames), schedule
+        p = self.params = as_params(JDParams, params, **changes)
+        check(p.decay_frames is not None, "jd.decay_frames", "an integer >= 0 (the run's frames resolved)", None)
+        self.p0, self.p_end, self.schedule = p.p0, p.p_end, p.schedule
+        self.decay_frames = int(p.decay_frames)
         lows, highs = [], []
-        for name, value, scale in (
-            ("z_range", z_range, 1.0),
-            ("roll_range", roll_range, math.pi / 180),
-            ("pitch_range", pitch_range, math.pi / 180),
-            ("yaw_range", yaw_range, math.pi / 180),
+        for (lo, hi), scale in (
+            (p.z_range, 1.0),
+            (p.roll_range, math.pi / 180),
+            (p.pitch_range, math.pi / 180),
+            (p.yaw_range, math.pi / 180),
         ):
-            lo, hi = _range(value, f"jd.{name}")
             lows.append(lo * scale)
             highs.append(hi * scale)
-        check(lows[0] > 0, "jd.z_range", "above the ground (low > 0)", z_range)
-        vlo, vhi = _range(velocity_range, "jd.velocity_range")
-        wlo, whi = _range(angular_velocity_range, "jd.angular_velocity_range")
+        vlo, vhi = p.velocity_range
+        wlo, whi = p.angular_velocity_range
         lows += [vlo] * 3 + [math.radians(wlo)] * 3
         highs += [vhi] * 3 + [math.radians(whi)] * 3
         self.register_buffer("low", torch.tensor(lows))
@@ -79,14 +52,14 @@ class JumpingDistribution(StartSampler):
         # Share of in-air starts mirrored upside down (tilt -> 180 deg - tilt), times `inverted_scale`
         # (the curriculum raises it from 0 to 1 with its progress; 1 without one). Near-inverted
         # starts are where the policy learns to flip before it thrusts (docs/training.md).
-        self.inverted_share, self.inverted_scale = float(inverted_share), 1.0
+        self.inverted_share, self.inverted_scale = p.inverted_share, 1.0
         # Share of those upside-down starts released at rest (no velocity, no body rates): there
         # no initial spin says which way to turn over, the hardest flip (docs/training.md).
-        self.inverted_at_rest = float(inverted_at_rest)
+        self.inverted_at_rest = p.inverted_at_rest
         # Their drawn roll and pitch are scaled by this before the turn (from 1 to it with the
         # curriculum's progress), so they land nearer 180 deg (0.5: tilted at least about 120 deg),
         # where the any-attitude failures are; no extra draw.
-        self.inverted_spread = float(inverted_spread)
+        self.inverted_spread = p.inverted_spread
         self._widens = torch.tensor([0.0, 1, 1, 0, 1, 1, 1, 1, 1, 1])  # z, roll, pitch, yaw, v, w
         self.register_buffer("frames", torch.zeros((), dtype=torch.long))
 

@@ -1,5 +1,6 @@
 """Physics, interface and robustness of QuadrotorEnv."""
 
+import dataclasses
 import math
 
 import pytest
@@ -8,7 +9,8 @@ from tensordict import TensorDict
 from torchrl.envs.utils import check_env_specs
 
 from bfc import keys
-from bfc.envs import QuadrotorEnv
+from bfc.config import EnvConfig
+from bfc.envs import EnvParams, QuadrotorEnv
 from bfc.envs.rotations import euler_to_quat, quat_to_euler, quat_to_matrix
 
 
@@ -297,6 +299,21 @@ def test_bad_constructor_values_name_the_key():
         QuadrotorEnv(1, airframe={"body_mass": -1})
     with pytest.raises(ValueError, match="allowed keys"):
         QuadrotorEnv(1, reward={"positon": 1.0})
+
+
+def test_the_env_takes_its_params_dataclass_or_its_fields_by_keyword():
+    params = EnvParams(control_hz=250.0, start_motors="hover", airframe={"body_mass": 0.9})
+    a, b = QuadrotorEnv(2, params), QuadrotorEnv(2, control_hz=250.0, start_motors="hover", airframe={"body_mass": 0.9})
+    assert a.params == b.params and a.airframe.body_mass == 0.9 and a.substeps == 2
+    changed = QuadrotorEnv(2, params, episode_seconds=1.0)  # a keyword changes one field of `params`
+    assert changed.max_episode_steps == 250 and changed.start_motors == "hover"
+    assert params.episode_seconds == 5.0  # the caller's params are left alone
+    with pytest.raises(ValueError, match="EnvParams: .*unexpected keyword.*allowed keys: control_hz"):
+        QuadrotorEnv(1, control_rate=250.0)
+    # the config's env section extends EnvParams: one default per value, the run's own where it differs
+    run, env = EnvConfig(), EnvParams()
+    differ = {f.name for f in dataclasses.fields(EnvParams) if getattr(run, f.name) != getattr(env, f.name)}
+    assert differ == {"physics_dt", "reward", "randomize"}
 
 
 def test_airframe_overrides_reach_the_physics():

@@ -142,6 +142,23 @@ def test_fly_noise_corrupts_what_the_controller_sees_not_the_judgement():
     assert torch.equal(success(clean), success(noisy))
 
 
+def test_fly_takes_its_conditions_whole_or_field_by_field():
+    from bfc.factory import FlightConditions, make_flight_env
+
+    starts = protocol_starts(4, seed=2)
+    flight = FlightConditions(seconds=0.5, noise={"kind": "gaussian", "std": 0.1}, action_delay=0.008, seed=3)
+    whole = fly("lee", starts, flight=flight)
+    by_field = fly("lee", starts, seconds=0.5, noise={"kind": "gaussian", "std": 0.1}, action_delay=0.008, seed=3)
+    assert whole.shape == (4, 125) and torch.equal(whole[keys.POSITION], by_field[keys.POSITION])
+    env = make_flight_env(2, flight, control_hz=100.0)
+    assert env.base_env.max_episode_steps == 150  # the episode runs a second past the flight
+    for bad, match in (({"seconds": 0}, "seconds must be > 0"), ({"action_delay": -0.01}, "action_delay")):
+        with pytest.raises(ValueError, match=match):
+            fly("lee", starts, **bad)
+    with pytest.raises(ValueError, match="FlightConditions: .*allowed keys: seconds"):
+        fly("lee", starts, second=1.0)
+
+
 def test_fly_rejects_bad_input(tmp_path):
     with pytest.raises(FileNotFoundError, match="no policy file"):
         fly(tmp_path / "missing.pt", protocol_starts(2))
