@@ -289,7 +289,7 @@ class BFCEnv(TransformedEnv):
         self.base_env.load_state_dict(base, strict=strict)
         self.transform.load_state_dict(rest, strict=strict, **kwargs)
 
-    fused_reset = True  # False: TorchRL's generic maybe_reset (the reference the fused one is tested against)
+    direct_reset = True  # False: TorchRL's generic maybe_reset (the reference the direct one is tested against)
 
     def reset_envs(self, done: torch.Tensor, start_state: torch.Tensor | None = None) -> TensorDictBase:
         """Reset the envs in `done` (N,) or (N, 1) bool, at `start_state` (N, 12) where it is not
@@ -320,7 +320,7 @@ class BFCEnv(TransformedEnv):
         the result is the same bit for bit (tests/training/test_hot_path.py).
         """
         done = tensordict.get(keys.DONE, None)
-        if not self.fused_reset or done is None:
+        if not self.direct_reset or done is None:
             return super().maybe_reset(tensordict)
         if not bool(done.any()):
             return tensordict

@@ -18,14 +18,14 @@ def assert_same(a: TensorDict, b: TensorDict) -> None:
 
 
 @pytest.mark.parametrize("overrides", [[], ["extras=none", "noise.kind=ou"]])
-def test_fused_partial_reset_equals_torchrl_reset(overrides):
+def test_direct_partial_reset_equals_torchrl_reset(overrides):
     # short episodes, and half the drones with their motors off: they fall from their random
     # heights, crash at different steps and reset a few at a time
     cfg = compose(["env.episode_seconds=0.6", *overrides])
     rollouts = []
-    for fused in (True, False):
+    for direct in (True, False):
         env = make_env(cfg, num_envs=12, seed=5)
-        env.fused_reset = fused
+        env.direct_reset = direct
         gen = torch.Generator().manual_seed(0)
         td, out, resets = env.reset(), [], 0
         for _ in range(150):
