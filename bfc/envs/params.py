@@ -343,7 +343,7 @@ class EnvParams:
         if self.physics_dt is not None:
             allowed = "> 0 (or null: one step per control step)"
             _check(_positive(self.physics_dt), "env.physics_dt", allowed, self.physics_dt)
-            substeps = round(1.0 / (self.control_hz * self.physics_dt))
+            substeps = self.substeps
             _check(
                 substeps >= 1 and abs(substeps * self.physics_dt * self.control_hz - 1.0) < 1e-6,
                 "env.control_hz",
@@ -366,6 +366,11 @@ class EnvParams:
     def physics_step(self) -> float:
         """MuJoCo's step (s): `physics_dt`, or one step per control step when it is None."""
         return float(self.physics_dt) if self.physics_dt is not None else 1.0 / float(self.control_hz)
+
+    @property
+    def substeps(self) -> int:
+        """MuJoCo steps per control step."""
+        return round(1.0 / (float(self.control_hz) * self.physics_step))
 
 
 JD_SCHEDULES = ("linear", "cosine", "constant")

@@ -138,9 +138,8 @@ class QuadrotorEnv(EnvBase):
         # (bfc.collectors.curriculum) widens it from a start fraction to 1; ranges shrink towards 1
         # (the nominal airframe) and the wind towards 0. Set between batches, never mid-episode.
         self.randomize_scale = 1.0
-        self.control_hz, self.physics_dt = float(p.control_hz), p.physics_step
-        self.substeps = substeps = round(1.0 / (self.control_hz * self.physics_dt))
-        physics_dt = self.physics_dt
+        self.control_hz, self.physics_dt, self.substeps = float(p.control_hz), p.physics_step, p.substeps
+        substeps, physics_dt = self.substeps, self.physics_dt
         self.dt = substeps * physics_dt
         self.max_episode_steps = max(1, round(p.episode_seconds / self.dt))
         self.hover_speed = self.airframe.hover_speed
