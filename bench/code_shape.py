@@ -2,7 +2,7 @@
 60 lines and functions with more than 8 parameters (self and cls not counted; *args and **kwargs
 not counted), each listed.
 
-    python bench/code_shape.py [--package bfc]
+    python bench/code_shape.py [--package bfc]     # from the repository root (a package folder there)
 """
 
 from __future__ import annotations
@@ -10,8 +10,6 @@ from __future__ import annotations
 import argparse
 import ast
 from pathlib import Path
-
-ROOT = Path(__file__).resolve().parents[1]
 
 
 def functions(package: Path):
@@ -21,18 +19,18 @@ def functions(package: Path):
                 a = node.args
                 named = [*a.posonlyargs, *a.args, *a.kwonlyargs]
                 params = len(named) - (1 if named and named[0].arg in ("self", "cls") else 0)
-                yield f"{path.relative_to(ROOT)}:{node.lineno} {node.name}", node.end_lineno - node.lineno + 1, params
+                yield f"{path}:{node.lineno} {node.name}", node.end_lineno - node.lineno + 1, params
 
 
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--package", default="bfc")
-    package = ROOT / p.parse_args().package
+    package = Path(p.parse_args().package)
     lines = sum(len(path.read_text().splitlines()) for path in package.rglob("*.py"))
     found = list(functions(package))
     long = sorted(((n, where) for where, n, _ in found if n > 60), reverse=True)
     wide = sorted(((k, where) for where, _, k in found if k > 8), reverse=True)
-    print(f"lines in {package.name}/: {lines:,}")
+    print(f"lines in {package}/: {lines:,}")
     print(f"functions over 60 lines: {len(long)}")
     for n, where in long:
         print(f"  {n:4d}  {where}")
