@@ -6,7 +6,7 @@ it is bfc's own (everything after `import torch, torchrl, mujoco`).
 Each round launches `python train.py collector.total_frames=<one batch> ...` and reads
 `collecting_since_unix_seconds` from its summary.json; a second interpreter times
 `import torch, torchrl, mujoco` alone. Prints the medians, and which heavy optional packages
-(plotting, SciPy, OSQP, ONNX) a training process imported (it should import none).
+(plotting, SciPy, OSQP, ONNX, Ray) a training process imported (it should import none).
 """
 
 from __future__ import annotations
@@ -25,7 +25,7 @@ LIBRARIES = "import time; t = time.perf_counter(); import torch, torchrl, mujoco
 PROBE = (
     "import runpy, sys; sys.argv = ['train.py', *sys.argv[1:]];\n"
     "try:\n    runpy.run_path('train.py', run_name='__main__')\nexcept SystemExit:\n    pass\n"
-    "print('LOADED', [m for m in ('matplotlib', 'scipy', 'osqp', 'onnx', 'onnxruntime') if m in sys.modules])"
+    "print('LOADED', [m for m in ('matplotlib', 'scipy', 'osqp', 'onnx', 'onnxruntime', 'ray') if m in sys.modules])"
 )
 
 

@@ -1,4 +1,5 @@
-"""The one module that reaches past TorchRL's public API (written against torchrl 0.14).
+"""The one module that reaches past TorchRL's public API (written against torchrl 0.14), and
+the one place that steers how TorchRL is imported.
 
 bfc needs two things TorchRL keeps private:
 - the Collector's in-flight tensordict (`Collector._carrier`): the observations, episode sums and
@@ -8,9 +9,16 @@ bfc needs two things TorchRL keeps private:
   checkpoint stores the filled part of its storage and this, not the whole preallocated storage
   that `ReplayBuffer.state_dict()` would write (1M transitions).
 tests/test_torchrl_compat.py fails if a TorchRL upgrade moves either.
+
+And one import-time cost: `torchrl.data` imports Ray whenever Ray is installed (for its Ray replay
+buffer), about 0.3 s of every training launch, though bfc installs Ray for its sweeps only and
+never uses TorchRL's Ray pieces (`import_torchrl_without_ray`).
 """
 
 from __future__ import annotations
+
+import importlib
+import sys
 
 from tensordict import TensorDictBase
 
@@ -34,3 +42,20 @@ def buffer_writer_state(buffer) -> dict:
 
 def load_buffer_writer_state(buffer, state: dict) -> None:
     buffer._writer.load_state_dict(state)
+
+
+def import_torchrl_without_ray() -> None:
+    """Import the TorchRL modules training uses with Ray hidden, unless Ray (or TorchRL's data
+    module) is loaded already. While they import, `sys.modules["ray"] = None` makes
+    `importlib.util.find_spec("ray")`, TorchRL's check, say "not installed"; afterwards Ray imports
+    as usual (a sweep's launcher, a Ray job: those have it loaded first and are left alone). In
+    this process TorchRL's Ray-backed classes then say Ray is missing; bfc uses none of them."""
+    if "ray" in sys.modules or "torchrl.data" in sys.modules:
+        return
+    sys.modules["ray"] = None
+    try:
+        for name in ("torchrl.data", "torchrl.envs", "torchrl.modules", "torchrl.objectives"):
+            importlib.import_module(name)
+    finally:
+        if "ray" in sys.modules and sys.modules["ray"] is None:
+            del sys.modules["ray"]

@@ -50,3 +50,41 @@ def test_the_replay_buffer_writer_state_says_where_the_next_transition_goes():
     load_buffer_writer_state(other, state)
     other.extend(TensorDict({"x": torch.tensor([9.0])}, batch_size=[1]))
     assert other.storage.get(2)["x"] == 9.0
+
+
+def _python(code: str) -> str:
+    import subprocess
+    import sys
+    import textwrap
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[1]
+    r = subprocess.run([sys.executable, "-c", textwrap.dedent(code)], cwd=root, capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr[-2000:]
+    return r.stdout.strip()
+
+
+def test_training_imports_torchrl_without_ray_and_ray_still_imports_after():
+    out = _python(
+        """
+        import sys
+        from bfc.training import train
+        from torchrl.data.replay_buffers import ray_buffer
+        print("ray" in sys.modules, ray_buffer._has_ray)
+        import ray
+        print(ray.__name__, "ray" in sys.modules)
+        """
+    )
+    assert out.splitlines() == ["False False", "ray True"]
+
+
+def test_a_process_with_ray_loaded_keeps_torchrls_ray_pieces():
+    out = _python(
+        """
+        import ray
+        from bfc.training import train
+        from torchrl.data.replay_buffers import ray_buffer
+        print(ray_buffer._has_ray, ray_buffer.ray is ray)
+        """
+    )
+    assert out == "True True"
