@@ -213,7 +213,7 @@ def test_training_never_imports_the_classical_controllers(tmp_path):
         from bfc.training import train
         from tests.training.helpers import TINY, compose_cfg
         train(compose_cfg([*TINY, "collector.total_frames=512", "env.episode_seconds=0.2"]), {str(tmp_path)!r})
-        loaded = [m for m in ("bfc.controllers", "osqp", "scipy") if m in sys.modules]
+        loaded = [m for m in ("bfc.controllers", "osqp", "scipy", "pandas", "ray") if m in sys.modules]
         print(loaded)
         """
     )

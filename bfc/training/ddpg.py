@@ -134,6 +134,6 @@ class DDPG:
         self.loss_module.load_state_dict(state["loss"])
         b = state["buffer"]
         if b["size"]:
-            self.buffer.extend(TensorDict.from_dict(b["transitions"], batch_size=[b["size"]]))
+            self.buffer.extend(TensorDict(b["transitions"], batch_size=[b["size"]]))  # not from_dict: no pandas
         load_buffer_writer_state(self.buffer, b["writer"])
         self.steps = int(state["steps"])
