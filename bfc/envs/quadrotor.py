@@ -139,8 +139,7 @@ class QuadrotorEnv(EnvBase):
         # (the nominal airframe) and the wind towards 0. Set between batches, never mid-episode.
         self.randomize_scale = 1.0
         self.control_hz, self.physics_dt, self.substeps = float(p.control_hz), p.physics_step, p.substeps
-        substeps, physics_dt = self.substeps, self.physics_dt
-        self.dt = substeps * physics_dt
+        self.dt = self.substeps * self.physics_dt
         self.max_episode_steps = max(1, round(p.episode_seconds / self.dt))
         self.hover_speed = self.airframe.hover_speed
         self.max_rotor_speed = self.airframe.max_rotor_speed
@@ -157,9 +156,22 @@ class QuadrotorEnv(EnvBase):
         assert self._nstate == 14, "asset layout changed: update the state slices"
         assert self.model.nu == 9, "asset actuators changed: update the wrench columns"
 
-        # Per-env state (float64, as MuJoCo integrates). The hot path works on NumPy views (`*_np`)
-        # of these tensors: a NumPy op on a (N,) column costs a third of a torch op.
-        n, f64 = num_envs, torch.float64
+        self._allocate_state(num_envs, p.goal)
+        # the rotor layout as wrench rows: torque x = sum y_i T_i, torque y = -sum x_i T_i,
+        # torque z = moment_constant sum spin_i T_i (AirframeParams.torque_rows)
+        # (4, 3): thrusts (..., 4) @ rows -> torques; built (3, 4) and transposed, a column-major view
+        # as it always was: the product's summation order, and so its last bits, follow the layout
+        self._torque_rows = np.array(list(zip(*self.airframe.torque_rows(), strict=True))).T
+        self._hull = self.airframe.hull_half_size
+        self._generator = torch.Generator()
+        self._generator.manual_seed(0 if seed is None else seed)
+        self._make_specs()
+
+    def _allocate_state(self, num_envs: int, goal) -> None:
+        """The per-env state (float64, as MuJoCo integrates) and the airframe multipliers. The hot
+        path works on NumPy views (`*_np`) of these tensors: a NumPy op on a (N,) column costs a
+        third of a torch op."""
+        n, f64, substeps = num_envs, torch.float64, self.substeps
         self._physics = torch.zeros(n, self._nstate, dtype=f64)
         self._physics_np = self._physics.numpy()
         self._out = np.zeros((n, substeps, self._nstate))
@@ -176,7 +188,7 @@ class QuadrotorEnv(EnvBase):
         self._ang_acc_np = self._ang_acc.numpy()
         self._steps = torch.zeros(n, dtype=torch.long)
         self._steps_np = self._steps.numpy()
-        self._goal = torch.tensor(p.goal, dtype=torch.float32).expand(n, 3).clone()
+        self._goal = torch.tensor(goal, dtype=torch.float32).expand(n, 3).clone()
         # Per-env airframe multipliers (randomised per episode by `env.randomize`, else ones):
         # mass, inertia, motor constant, motor time constants. From them: the wrench gains (the
         # nominal body's mass and inertia over the flown one's), the thrust constant k_f and the
@@ -187,19 +199,10 @@ class QuadrotorEnv(EnvBase):
         self._force_gain = np.ones((n, 1))
         self._torque_gain = np.ones((n, 1, 3))
         self._kf = np.full((n, 1, 1), self.airframe.motor_constant)
-        self._mid = ((np.arange(substeps) + 0.5) * physics_dt).reshape(1, substeps, 1)
+        self._mid = ((np.arange(substeps) + 0.5) * self.physics_dt).reshape(1, substeps, 1)
         self._decay_sub = (np.empty((n, substeps, 1)), np.empty((n, substeps, 1)))
         self._decay_step = (np.empty((n, 1)), np.empty((n, 1)))
         self._apply_airframe_scale(np.ones(n, dtype=bool))
-        # the rotor layout as wrench rows: torque x = sum y_i T_i, torque y = -sum x_i T_i,
-        # torque z = moment_constant sum spin_i T_i (AirframeParams.torque_rows)
-        # (4, 3): thrusts (..., 4) @ rows -> torques; built (3, 4) and transposed, a column-major view
-        # as it always was: the product's summation order, and so its last bits, follow the layout
-        self._torque_rows = np.array(list(zip(*self.airframe.torque_rows(), strict=True))).T
-        self._hull = self.airframe.hull_half_size
-        self._generator = torch.Generator()
-        self._generator.manual_seed(0 if seed is None else seed)
-        self._make_specs()
 
     def _apply_airframe_scale(self, m: np.ndarray) -> None:
         """Recompute the wrench gains and the motor model of the envs in mask `m` from their
