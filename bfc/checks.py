@@ -6,8 +6,15 @@ imports nothing from bfc.
 
 from __future__ import annotations
 
+import math
+
 
 def check(cond: bool, key: str, allowed: str, value) -> None:
     """Raise `ValueError("<key> must be <allowed>, got <value>")` unless `cond`."""
     if not cond:
         raise ValueError(f"{key} must be {allowed}, got {value!r}")
+
+
+def finite(v) -> bool:
+    """A finite int or float (not a bool, not a string): what a numeric setting must be."""
+    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)

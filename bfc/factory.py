@@ -14,7 +14,6 @@ training, a policy file's in a flight.
 
 from __future__ import annotations
 
-import math
 import zlib
 from dataclasses import dataclass
 from typing import Any
@@ -26,7 +25,7 @@ from torchrl.envs import Compose, RewardSum, StepCounter, TransformedEnv
 
 from bfc import keys
 from bfc.agent import PolicySpec
-from bfc.checks import check
+from bfc.checks import check, finite
 from bfc.config import jd_decay_frames
 from bfc.envs import REFERENCE_PHYSICS_DT, AirframeParams, EnvParams, JDParams, QuadrotorEnv
 from bfc.envs.params import as_params, params_from
@@ -188,14 +187,10 @@ class FlightConditions:
     start_motors: str = "rest"
 
     def __post_init__(self) -> None:
-        check(_number(self.seconds) and self.seconds > 0, "seconds", "> 0", self.seconds)
+        check(finite(self.seconds) and self.seconds > 0, "seconds", "> 0", self.seconds)
         for name in ("observation_delay", "action_delay"):
             v = getattr(self, name)
-            check(_number(v) and v >= 0, name, ">= 0 seconds", v)
-
-
-def _number(v) -> bool:
-    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+            check(finite(v) and v >= 0, name, ">= 0 seconds", v)
 
 
 def make_flight_env(

@@ -13,6 +13,7 @@ import math
 from dataclasses import dataclass, field, fields
 
 from bfc.checks import check as _check
+from bfc.checks import finite
 
 GOAL = (0.0, 0.0, 1.5)  # m: the paper's hover goal, every flight's and training's default
 REFERENCE_PHYSICS_DT = 0.002  # s: the simulator every evaluation flies (training may step coarser)
@@ -106,7 +107,7 @@ class AirframeParams:
             if f.name in _TRIPLES:
                 _check(len(values) == 3, f"env.airframe.{f.name}", "3 numbers (x, y, z)", value)
             for v in values:
-                ok = isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) and v >= 0
+                ok = finite(v) and v >= 0
                 _check(ok, f"env.airframe.{f.name}", "finite and >= 0", value)
         positive = ("body_mass", "motor_constant", "max_rotor_speed", "time_constant_up", "time_constant_down")
         for name in positive:
@@ -352,7 +353,7 @@ class EnvParams:
             )
         _check(_positive(self.episode_seconds), "env.episode_seconds", "> 0", self.episode_seconds)
         goal = tuple(self.goal) if isinstance(self.goal, (tuple, list)) else ()
-        ok = len(goal) == 3 and all(_finite(v) for v in goal)
+        ok = len(goal) == 3 and all(finite(v) for v in goal)
         _check(ok, "env.goal", "3 finite numbers (x, y, z)", self.goal)
         self.goal = tuple(float(v) for v in goal)
         _check(self.start_motors in START_MOTORS, "env.start_motors", "'rest' or 'hover'", self.start_motors)
@@ -400,10 +401,10 @@ class JDParams:
     def __post_init__(self) -> None:
         for name in ("p0", "p_end", "inverted_share", "inverted_at_rest"):
             v = getattr(self, name)
-            _check(_finite(v) and 0.0 <= v <= 1.0, f"jd.{name}", "in [0, 1]", v)
+            _check(finite(v) and 0.0 <= v <= 1.0, f"jd.{name}", "in [0, 1]", v)
             setattr(self, name, float(v))
         v = self.inverted_spread
-        _check(_finite(v) and 0.0 < v <= 1.0, "jd.inverted_spread", "in (0, 1]", v)
+        _check(finite(v) and 0.0 < v <= 1.0, "jd.inverted_spread", "in (0, 1]", v)
         self.inverted_spread = float(v)
         v = self.decay_frames
         ok = v is None or (isinstance(v, int) and not isinstance(v, bool) and v >= 0)
@@ -411,15 +412,11 @@ class JDParams:
         _check(self.schedule in JD_SCHEDULES, "jd.schedule", f"one of {JD_SCHEDULES}", self.schedule)
         for name in ("z_range", "roll_range", "pitch_range", "yaw_range", "velocity_range", "angular_velocity_range"):
             r = getattr(self, name)
-            ok = isinstance(r, (tuple, list)) and len(r) == 2 and all(_finite(x) for x in r) and r[0] <= r[1]
+            ok = isinstance(r, (tuple, list)) and len(r) == 2 and all(finite(x) for x in r) and r[0] <= r[1]
             _check(ok, f"jd.{name}", "a pair [low, high] with low <= high", r)
             setattr(self, name, (float(r[0]), float(r[1])))
         _check(self.z_range[0] > 0, "jd.z_range", "above the ground (low > 0)", self.z_range)
 
 
-def _finite(v) -> bool:
-    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
-
-
 def _positive(v) -> bool:
-    return _finite(v) and v > 0
+    return finite(v) and v > 0
