@@ -770,13 +770,20 @@ def validate(cfg) -> None:
         wind,
     )
     mass, k_f = cfg.env.randomize.mass, cfg.env.randomize.motor_constant
-    own = 4 * airframe.motor_constant * airframe.max_rotor_speed**2 / airframe.weight  # thrust-to-weight
+    own, floor = airframe.thrust_to_weight, cfg.env.randomize.min_thrust_to_weight
+    check(
+        floor < own,
+        "env.randomize.min_thrust_to_weight",
+        f"below the airframe's own thrust-to-weight {own:.2f} (0: off)",
+        floor,
+    )
     lift = own * k_f[0] * airframe.total_mass / (airframe.total_mass + airframe.body_mass * (mass[1] - 1))
     check(
-        lift > 1.0,
+        max(lift, floor) > 1.0,
         "env.randomize.mass",
         f"ranges whose heaviest body with the weakest motors can still lift itself (here thrust-to-weight "
-        f"{lift:.2f} at mass x{mass[1]:g}, motor constant x{k_f[0]:g}; the airframe's own is {own:.2f})",
+        f"{lift:.2f} at mass x{mass[1]:g}, motor constant x{k_f[0]:g}; the airframe's own is {own:.2f}; "
+        "or a floor env.randomize.min_thrust_to_weight above 1)",
         list(mass),
     )
     check(cfg.sweep_objective in OBJECTIVES, "sweep_objective", ", ".join(OBJECTIVES), cfg.sweep_objective)

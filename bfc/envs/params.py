@@ -154,6 +154,11 @@ class AirframeParams:
         return (ixx + 2 * arm, iyy + 2 * arm, izz + 4 * arm)
 
     @property
+    def thrust_to_weight(self) -> float:
+        """Four rotors' full thrust over the weight: (max_rotor_speed / hover_speed)^2."""
+        return (self.max_rotor_speed / self.hover_speed) ** 2
+
+    @property
     def hover_speed(self) -> float:
         """Rotor speed (rad/s) at which four rotors carry the weight: sqrt(m g / (4 k_f))."""
         return math.sqrt(self.total_mass * self.gravity / (4 * self.motor_constant))
@@ -295,10 +300,15 @@ class RandomizeParams:
     inertia: tuple[float, float] = (1.0, 1.0)  # x the base link's inertia (all three axes)
     motor_constant: tuple[float, float] = (1.0, 1.0)  # x k_f (thrust per speed squared)
     motor_lag: tuple[float, float] = (1.0, 1.0)  # x both motor time constants
+    # a drawn airframe weaker than this (full thrust / weight) gets a larger motor constant until it
+    # reaches it: wide mass and k_f ranges without bodies that cannot lift themselves (0: off)
+    min_thrust_to_weight: float = 0.0
 
     def __post_init__(self) -> None:
-        v = self.external_force
-        _check(isinstance(v, (int, float)) and math.isfinite(v) and v >= 0, "env.randomize.external_force", ">= 0", v)
+        for name in ("external_force", "min_thrust_to_weight"):
+            v = getattr(self, name)
+            _check(isinstance(v, (int, float)) and math.isfinite(v) and v >= 0, f"env.randomize.{name}", ">= 0", v)
+            setattr(self, name, float(v))
         for name in AIRFRAME_RANGES:
             r = getattr(self, name)
             ok = (

@@ -235,6 +235,11 @@ class QuadrotorEnv(EnvBase):
                 u = torch.rand(k, generator=g, dtype=torch.float64).numpy()
                 self._airframe_scale_np[m, col] = low + (high - low) * u
                 changed = True
+        if changed and r.min_thrust_to_weight > 0:  # too weak to climb: stronger motors, no new draw
+            a, scale = self.airframe, self._airframe_scale_np[m]
+            lift = a.total_mass / (a.total_mass + a.body_mass * (scale[:, 0] - 1))  # the mass's force gain
+            scale[:, 2] = np.maximum(scale[:, 2], r.min_thrust_to_weight / (a.thrust_to_weight * lift))
+            self._airframe_scale_np[m] = scale
         if changed:
             self._apply_airframe_scale(m)
 

@@ -173,6 +173,36 @@ def test_randomised_airframes_that_cannot_lift_themselves_are_refused():
         validate(cfg)
     validate(compose(["env.airframe=crazyflie"]))
     validate(compose([]))
+    floor = ["env.airframe=crazyflie", "env.randomize.mass=[0.7,1.3]", "env.randomize.motor_constant=[0.8,1.2]"]
+    validate(compose([*floor, "env.randomize.min_thrust_to_weight=1.15"]))  # a floor above 1 lifts every draw
+    with pytest.raises(ValueError, match=r"min_thrust_to_weight must be below the airframe's own .* 1.53"):
+        validate(compose([*floor, "env.randomize.min_thrust_to_weight=1.6"]))
+
+
+def test_a_thrust_to_weight_floor_strengthens_only_the_motors_of_weaker_draws():
+    """mass x0.7-1.3 and k_f x0.8-1.2 on the Crazyflie (1.53) draw bodies down to 0.94; with a
+    floor of 1.15 those get a larger k_f until they reach it, every other draw is left as it was."""
+    from bfc.config import airframe_params
+    from bfc.envs import QuadrotorEnv
+
+    cf = airframe_params("crazyflie")
+    ranges = {"mass": (0.7, 1.3), "motor_constant": (0.8, 1.2)}
+
+    def drawn(**floor):
+        env = QuadrotorEnv(256, airframe=cf, randomize={**ranges, **floor}, seed=5)
+        env.reset()
+        scale = env.airframe_scale
+        env.close()
+        gain = cf.total_mass / (cf.total_mass + cf.body_mass * (scale["mass"] - 1))
+        return scale, cf.thrust_to_weight * scale["motor_constant"] * gain
+
+    free, free_ratio = drawn()
+    held, held_ratio = drawn(min_thrust_to_weight=1.15)
+    weak = free_ratio < 1.15
+    assert weak.any() and (~weak).any() and free_ratio.min() < 1.0  # some draws could not lift themselves
+    assert held_ratio.min() >= 1.15 - 1e-9 and torch.allclose(held_ratio[weak], torch.full_like(held_ratio[weak], 1.15))
+    assert torch.equal(held["mass"], free["mass"])  # the same draws: only the weak ones' k_f moved
+    assert torch.equal(held["motor_constant"][~weak], free["motor_constant"][~weak])
 
 
 def test_train_py_reports_a_bad_airframe_in_one_line(tmp_path):
