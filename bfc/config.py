@@ -777,7 +777,7 @@ def validate(cfg) -> None:
         f"below the airframe's own thrust-to-weight {own:.2f} (0: off)",
         floor,
     )
-    lift = own * k_f[0] * airframe.total_mass / (airframe.total_mass + airframe.body_mass * (mass[1] - 1))
+    lift = own * k_f[0] * airframe.mass_gain(mass[1])
     check(
         max(lift, floor) > 1.0,
         "env.randomize.mass",

@@ -153,6 +153,11 @@ class AirframeParams:
         ixx, iyy, izz = self.inertia
         return (ixx + 2 * arm, iyy + 2 * arm, izz + 4 * arm)
 
+    def mass_gain(self, body_mass_scale):
+        """The gain on the body force that flies this airframe with its body_mass x `body_mass_scale`
+        (a number or an array): m / m', the rotors and IMU unchanged."""
+        return self.total_mass / (self.total_mass + self.body_mass * (body_mass_scale - 1))
+
     @property
     def thrust_to_weight(self) -> float:
         """Four rotors' full thrust over the weight: (max_rotor_speed / hover_speed)^2."""
@@ -307,16 +312,11 @@ class RandomizeParams:
     def __post_init__(self) -> None:
         for name in ("external_force", "min_thrust_to_weight"):
             v = getattr(self, name)
-            _check(isinstance(v, (int, float)) and math.isfinite(v) and v >= 0, f"env.randomize.{name}", ">= 0", v)
+            _check(finite(v) and v >= 0, f"env.randomize.{name}", ">= 0", v)
             setattr(self, name, float(v))
         for name in AIRFRAME_RANGES:
             r = getattr(self, name)
-            ok = (
-                isinstance(r, (tuple, list))
-                and len(r) == 2
-                and all(isinstance(x, (int, float)) and math.isfinite(x) for x in r)
-                and 0 < r[0] <= r[1]
-            )
+            ok = isinstance(r, (tuple, list)) and len(r) == 2 and all(finite(x) for x in r) and 0 < r[0] <= r[1]
             _check(ok, f"env.randomize.{name}", "[low, high] multipliers with 0 < low <= high", r)
             setattr(self, name, (float(r[0]), float(r[1])))
 

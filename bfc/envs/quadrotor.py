@@ -208,7 +208,7 @@ class QuadrotorEnv(EnvBase):
         """Recompute the wrench gains and the motor model of the envs in mask `m` from their
         airframe multipliers (mass, inertia, motor constant, motor lag)."""
         a, scale = self.airframe, self._airframe_scale_np[m]
-        self._force_gain[m, 0] = a.total_mass / (a.total_mass + a.body_mass * (scale[:, 0] - 1))
+        self._force_gain[m, 0] = a.mass_gain(scale[:, 0])
         rigid, base = np.array(a.rigid_inertia), np.array(a.inertia)
         self._torque_gain[m, 0] = rigid / (rigid + base * (scale[:, 1:2] - 1))
         self._kf[m, 0, 0] = a.motor_constant * scale[:, 2]
@@ -235,13 +235,15 @@ class QuadrotorEnv(EnvBase):
                 u = torch.rand(k, generator=g, dtype=torch.float64).numpy()
                 self._airframe_scale_np[m, col] = low + (high - low) * u
                 changed = True
-        if changed and r.min_thrust_to_weight > 0:  # too weak to climb: stronger motors, no new draw
+        if not changed:
+            return
+        if r.min_thrust_to_weight > 0:  # too weak to climb: stronger motors, no new draw
             a, scale = self.airframe, self._airframe_scale_np[m]
-            lift = a.total_mass / (a.total_mass + a.body_mass * (scale[:, 0] - 1))  # the mass's force gain
-            scale[:, 2] = np.maximum(scale[:, 2], r.min_thrust_to_weight / (a.thrust_to_weight * lift))
+            scale[:, 2] = np.maximum(
+                scale[:, 2], r.min_thrust_to_weight / (a.thrust_to_weight * a.mass_gain(scale[:, 0]))
+            )
             self._airframe_scale_np[m] = scale
-        if changed:
-            self._apply_airframe_scale(m)
+        self._apply_airframe_scale(m)
 
     # ----------------------------------------------------------------- specs
     def _make_specs(self) -> None:

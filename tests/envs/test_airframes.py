@@ -193,8 +193,7 @@ def test_a_thrust_to_weight_floor_strengthens_only_the_motors_of_weaker_draws():
         env.reset()
         scale = env.airframe_scale
         env.close()
-        gain = cf.total_mass / (cf.total_mass + cf.body_mass * (scale["mass"] - 1))
-        return scale, cf.thrust_to_weight * scale["motor_constant"] * gain
+        return scale, cf.thrust_to_weight * scale["motor_constant"] * cf.mass_gain(scale["mass"])
 
     free, free_ratio = drawn()
     held, held_ratio = drawn(min_thrust_to_weight=1.15)
