@@ -318,8 +318,9 @@ def robust_figure(results: dict, path) -> None:
     for ax, title in ((ax_s, "success rate"), (ax_e, "hover error, median of successful flights (cm)")):
         ax.set_xticks([i + 0.4 - width / 2 for i in range(len(names))], names, rotation=35, ha="right", fontsize=8)
         ax.set_title(title)
-        ax.legend(fontsize=8, loc="lower left", framealpha=0.9)
     if any(e is not None and e > 0 for row in results.values() for s in row.values() for e in [s["hover_error_m"]]):
         ax_e.set_yscale("log")  # (no successful flight anywhere: nothing to draw on a log scale)
-    fig.tight_layout()
+    # One legend above both panels: inside either it hid the first rows' bars
+    fig.legend(*ax_s.get_legend_handles_labels(), loc="upper center", ncol=len(labels), fontsize=8, frameon=False)
+    fig.tight_layout(rect=(0, 0, 1, 0.94))
     fig.savefig(path, dpi=110)

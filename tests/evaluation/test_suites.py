@@ -154,3 +154,22 @@ def test_the_rows_follow_the_airframe_flown():
     flights = fly_condition("lee", "ground", 3, seconds=3.0, airframe=cf)
     z = flights.get(("state", "position"))[..., 2]
     assert z[:, 0].max() < 0.02 and (z[:, -1] > 1.3).all()  # from its own floor height up to the goal
+
+
+def test_the_suite_figure_keeps_its_legend_off_the_bars(tmp_path, monkeypatch):
+    """One legend above both panels: inside a panel it hid the first rows' bars."""
+    from matplotlib.figure import Figure
+
+    from bfc.evaluation.suites import robust_figure
+
+    results = {row: {c: {"success_rate": 1.0, "hover_error_m": 0.004} for c in ("bfc", "lee")} for row in ("a", "b")}
+    saved = []
+    monkeypatch.setattr(Figure, "savefig", lambda fig, path, **kw: saved.append(fig))
+    robust_figure(results, tmp_path / "robust.png")
+    (fig,) = saved
+    assert all(ax.get_legend() is None for ax in fig.axes)
+    (legend,) = fig.legends
+    assert [t.get_text() for t in legend.get_texts()] == ["bfc", "lee"]
+    fig.canvas.draw()
+    box = legend.get_window_extent()
+    assert not any(box.overlaps(ax.get_window_extent()) for ax in fig.axes)
