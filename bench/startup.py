@@ -6,7 +6,7 @@ it is bfc's own (everything after `import torch, torchrl, mujoco`).
 Each round launches `python train.py collector.total_frames=<one batch> ...` and reads
 `collecting_since_unix_seconds` from its summary.json; a second interpreter times
 `import torch, torchrl, mujoco` alone. Prints the medians, and which heavy optional packages
-(plotting, SciPy, OSQP, ONNX, Ray, pandas) a training process imported (it should import none).
+(plotting, SciPy, OSQP, ONNX, Ray, pandas, boto3) a training process imported (it should import none).
 """
 
 from __future__ import annotations
@@ -21,7 +21,8 @@ import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
-HEAVY = ("matplotlib", "scipy", "osqp", "onnx", "onnxruntime", "ray", "pandas")  # a training process imports none
+# a training process imports none of these
+HEAVY = ("matplotlib", "scipy", "osqp", "onnx", "onnxruntime", "ray", "pandas", "boto3")
 LIBRARIES = "import time; t = time.perf_counter(); import torch, torchrl, mujoco; print(time.perf_counter() - t)"
 PROBE = (
     "import runpy, sys; sys.argv = ['train.py', *sys.argv[1:]];\n"

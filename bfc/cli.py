@@ -115,6 +115,7 @@ def precheck(config_name: str, argv: list[str] | None = None) -> list[str]:
     import warnings
 
     from bfc.config import check_overrides, expand_airframe
+    from bfc.hydra_compat import skip_mode_probe
 
     # conf/hydra/launcher/ray.yaml replaces the Ray plugin's defaults, which Hydra warns of
     warnings.filterwarnings("ignore", message=r"\s*'hydra/launcher/ray' is validated against ConfigStore schema")
@@ -122,6 +123,7 @@ def precheck(config_name: str, argv: list[str] | None = None) -> list[str]:
     overrides, ours = overrides_of(argv)
     if not ours:
         return argv
+    skip_mode_probe()  # the repository's configs never set hydra.mode: one composition, not two
     try:
         if config_name == "config":
             expanded = expand_airframe(overrides)

@@ -22,6 +22,8 @@ import sys
 
 from tensordict import TensorDictBase
 
+from bfc.imports import without
+
 TORCHRL_VERSIONS = "0.14"  # the versions these reaches were written and tested against
 
 
@@ -45,17 +47,13 @@ def load_buffer_writer_state(buffer, state: dict) -> None:
 
 
 def import_torchrl_without_ray() -> None:
-    """Import the TorchRL modules training uses with Ray hidden, unless Ray (or TorchRL's data
-    module) is loaded already. While they import, `sys.modules["ray"] = None` makes
-    `importlib.util.find_spec("ray")`, TorchRL's check, say "not installed"; afterwards Ray imports
-    as usual (a sweep's launcher, a Ray job: those have it loaded first and are left alone). In
-    this process TorchRL's Ray-backed classes then say Ray is missing; bfc uses none of them."""
+    """Import the TorchRL modules training uses with Ray hidden (`bfc.imports.without`), unless
+    Ray (or TorchRL's data module) is loaded already: `find_spec("ray")`, TorchRL's check, then
+    says "not installed", and afterwards Ray imports as usual (a sweep's launcher, a Ray job: those
+    have it loaded first and are left alone). In this process TorchRL's Ray-backed classes then
+    say Ray is missing; bfc uses none of them."""
     if "ray" in sys.modules or "torchrl.data" in sys.modules:
         return
-    sys.modules["ray"] = None
-    try:
+    with without("ray"):
         for name in ("torchrl.data", "torchrl.envs", "torchrl.modules", "torchrl.objectives"):
             importlib.import_module(name)
-    finally:
-        if "ray" in sys.modules and sys.modules["ray"] is None:
-            del sys.modules["ray"]

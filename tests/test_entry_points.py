@@ -1,5 +1,6 @@
 """What a new user meets first: the import paths, composing configs, clear errors, no global side effects."""
 
+import importlib.util
 import runpy
 import subprocess
 import sys
@@ -210,15 +211,19 @@ def test_training_never_imports_the_classical_controllers(tmp_path):
     r = fresh_python(
         f"""
         import sys
+        from pathlib import Path
         from bfc.training import train
         from tests.training.helpers import TINY, compose_cfg
         train(compose_cfg([*TINY, "collector.total_frames=512", "env.episode_seconds=0.2"]), {str(tmp_path)!r})
-        loaded = [m for m in ("bfc.controllers", "osqp", "scipy", "pandas", "ray") if m in sys.modules]
-        print(loaded)
+        loaded = [m for m in ("bfc.controllers", "osqp", "scipy", "pandas", "ray", "boto3") if m in sys.modules]
+        print(loaded, (Path({str(tmp_path)!r}) / "tb").is_dir())
+        import importlib.util  # TensorBoard's S3 support is kept out of training only: found after
+        print(importlib.util.find_spec("boto3") is not None)
         """
     )
     assert r.returncode == 0, r.stderr[-2000:]
-    assert r.stdout.strip().splitlines()[-1] == "[]"
+    installed = importlib.util.find_spec("boto3") is not None  # with the ray extra
+    assert r.stdout.strip().splitlines()[-2:] == ["[] True", str(installed)]
 
 
 @pytest.mark.parametrize(
