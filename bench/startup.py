@@ -4,9 +4,11 @@ it is bfc's own (everything after `import torch, torchrl, mujoco`).
     python bench/startup.py [--rounds 3] [-- train.py overrides]
 
 Each round launches `python train.py collector.total_frames=<one batch> ...` and reads
-`collecting_since_unix_seconds` from its summary.json; a second interpreter times
-`import torch, torchrl, mujoco` alone. Prints the medians, and which heavy optional packages
-(plotting, SciPy, OSQP, ONNX, Ray, pandas, boto3) a training process imported (it should import none).
+`collecting_since_unix_seconds` from its summary.json. The launched process first times
+`import torch, torchrl, mujoco` itself; bfc's share is the rest of its launch (so the libraries'
+own spread, which is large on a shared machine, stays out of it). Prints the medians, and which
+heavy optional packages (plotting, SciPy, OSQP, ONNX, Ray, pandas, boto3) a training process
+imported (it should import none).
 """
 
 from __future__ import annotations
@@ -23,10 +25,11 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 # a training process imports none of these
 HEAVY = ("matplotlib", "scipy", "osqp", "onnx", "onnxruntime", "ray", "pandas", "boto3")
-LIBRARIES = "import time; t = time.perf_counter(); import torch, torchrl, mujoco; print(time.perf_counter() - t)"
 PROBE = (
+    "import time; t = time.perf_counter(); import torch, torchrl, mujoco; libraries = time.perf_counter() - t\n"
     "import runpy, sys; sys.argv = ['train.py', *sys.argv[1:]];\n"
     "try:\n    runpy.run_path('train.py', run_name='__main__')\nexcept SystemExit:\n    pass\n"
+    "print('LIBRARIES', libraries)\n"
     f"print('LOADED', [m for m in {HEAVY!r} if m in sys.modules])"
 )
 
@@ -38,9 +41,6 @@ def main() -> None:
     args = p.parse_args()
     launch, libraries = [], []
     for _ in range(args.rounds):
-        libraries.append(
-            float(subprocess.run([sys.executable, "-c", LIBRARIES], capture_output=True, text=True).stdout)
-        )
         with tempfile.TemporaryDirectory() as run_dir:
             overrides = ["logger.progress=false", f"hydra.run.dir={run_dir}", "eval.num_starts=1", *args.overrides]
             batch = ["collector.total_frames=1"]  # rounded up to one batch
@@ -52,11 +52,12 @@ def main() -> None:
                 sys.exit(r.stderr[-2000:])
             summary = json.loads((Path(run_dir) / "summary.json").read_text())
             launch.append(summary["collecting_since_unix_seconds"] - t)
-            loaded = r.stdout.strip().splitlines()[-1]
-    lib, total = statistics.median(libraries), statistics.median(launch)
-    print(f"launch to the first training frame: {total:.2f} s (median of {args.rounds})")
-    print(f"  import torch, torchrl, mujoco: {lib:.2f} s")
-    print(f"  the rest (Python start-up, bfc, Hydra, the envs, the networks): {total - lib:.2f} s")
+            *_, lib, loaded = r.stdout.strip().splitlines()
+            libraries.append(float(lib.removeprefix("LIBRARIES ")))
+    rest = statistics.median(total - lib for total, lib in zip(launch, libraries, strict=True))
+    print(f"launch to the first training frame: {statistics.median(launch):.2f} s (median of {args.rounds})")
+    print(f"  import torch, torchrl, mujoco: {statistics.median(libraries):.2f} s")
+    print(f"  the rest (Python start-up, bfc, Hydra, the envs, the networks): {rest:.2f} s")
     print(f"  heavy optional packages the training process imported: {loaded.removeprefix('LOADED ')}")
 
 
