@@ -13,6 +13,11 @@ a checkpoint and exits with status 143; a collector worker that dies ends the ru
 `error:` line and status 1; Ctrl-C exits with status 130 (bfc.lifetime, docs/training.md).
 """
 
+from bfc.imports import hold_garbage_collection, release_garbage_collection
+
+if __name__ == "__main__":
+    hold_garbage_collection()  # while everything imports; main() releases it once training's imports are done
+
 import os
 import sys
 from pathlib import Path
@@ -66,6 +71,7 @@ def main(cfg) -> float:
         # torch, TorchRL and MuJoCo load only for a config that passed its checks: bad input fails at once
         from bfc.training import train
 
+        release_garbage_collection()  # the imports are done; before the collector's worker forks
         if multirun:
             lifetime.bind_job_to_sweep()  # a launcher's worker process ends with the sweep
             write_status(run_dir, "running", pid=os.getpid())

@@ -17,6 +17,8 @@ from pathlib import Path
 
 from hydra.experimental.callback import Callback
 
+from bfc.imports import release_garbage_collection
+
 STATUS = "status.json"
 
 
@@ -53,6 +55,9 @@ def read_runs(sweep_dir) -> list[dict]:
 class SweepReport(Callback):
     """Hydra callback (conf/config.yaml): at the end of a multirun, print and save what became of
     every job, and exit with status 1 if any did not finish."""
+
+    def on_multirun_start(self, config, **kwargs) -> None:
+        release_garbage_collection()  # train.py held it while importing; a sweep's process lives as long as the sweep
 
     def on_multirun_end(self, config, **kwargs) -> None:
         sweep_dir = Path(str(config.hydra.sweep.dir))

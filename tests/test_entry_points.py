@@ -271,3 +271,31 @@ def test_every_benchmark_explains_itself(script, monkeypatch, capsys):
         runpy.run_path(str(ROOT / "bench" / script), run_name="__main__")
     assert exit_.value.code == 0
     assert "usage:" in capsys.readouterr().out
+
+
+def test_train_py_holds_the_garbage_collector_only_while_it_imports(tmp_path):
+    # train.py's launch runs without Python's cyclic collector (bfc.imports); training, and every
+    # process it forks (the collector's worker, the background evaluator), runs with it on
+    r = fresh_python(
+        f"""
+        import gc, runpy, sys
+        import bfc.training.runner as runner
+        seen = []
+        init = runner.Runner.__init__
+        def recording(self, *args, **kwargs):
+            seen.append(gc.isenabled())  # the env, the workers and the evaluator are made here
+            init(self, *args, **kwargs)
+        runner.Runner.__init__ = recording
+        sys.argv = ["train.py", "env.num_envs=16", "collector.frames_per_batch=512", "collector.total_frames=512",
+                    "eval.num_starts=4", "eval.seconds=0.5", "eval.hold_seconds=0.25", "logger.progress=false",
+                    "hydra.run.dir={tmp_path}"]
+        gc.disable()  # as train.py's first lines leave it when it runs as a script
+        try:
+            runpy.run_path("train.py", run_name="__main__")
+        except SystemExit as e:
+            assert not e.code, e.code
+        print(seen, gc.isenabled(), gc.get_freeze_count() > 0)
+        """
+    )
+    assert r.returncode == 0, r.stderr[-2000:]
+    assert r.stdout.strip().splitlines()[-1] == "[True] True True"
