@@ -3,10 +3,11 @@ it is bfc's own (everything after `import torch, torchrl, mujoco`).
 
     python bench/startup.py [--rounds 3] [-- train.py overrides]
 
-Each round launches `python train.py collector.total_frames=<one batch> ...` and reads
-`collecting_since_unix_seconds` from its summary.json. The launched process first times
-`import torch, torchrl, mujoco` itself; bfc's share is the rest of its launch (so the libraries'
-own spread, which is large on a shared machine, stays out of it). Prints the medians, and which
+Each round launches `python train.py collector.total_frames=<one batch> ...` as a user does and
+reads `collecting_since_unix_seconds` from its summary.json: the launch. Then a second launch
+first times `import torch, torchrl, mujoco` in its own process and runs train.py after it:
+bfc's share is the rest of that launch (so the libraries' own spread, which is large on a shared
+machine, stays out of it). Prints the medians, and which
 heavy optional packages (plotting, SciPy, OSQP, ONNX, Ray, pandas, boto3) a training process
 imported (it should import none).
 """
@@ -39,25 +40,24 @@ def main() -> None:
     p.add_argument("--rounds", type=int, default=3)
     p.add_argument("overrides", nargs="*", help="train.py overrides")
     args = p.parse_args()
-    launch, libraries = [], []
+    launch, probed, libraries = [], [], []
     for _ in range(args.rounds):
-        with tempfile.TemporaryDirectory() as run_dir:
-            overrides = ["logger.progress=false", f"hydra.run.dir={run_dir}", "eval.num_starts=1", *args.overrides]
-            batch = ["collector.total_frames=1"]  # rounded up to one batch
-            t = time.time()
-            r = subprocess.run(
-                [sys.executable, "-c", PROBE, *batch, *overrides], cwd=ROOT, capture_output=True, text=True
-            )
-            if r.returncode != 0:
-                sys.exit(r.stderr[-2000:])
-            summary = json.loads((Path(run_dir) / "summary.json").read_text())
-            launch.append(summary["collecting_since_unix_seconds"] - t)
-            *_, lib, loaded = r.stdout.strip().splitlines()
-            libraries.append(float(lib.removeprefix("LIBRARIES ")))
-    rests = [total - lib for total, lib in zip(launch, libraries, strict=True)]
+        for command, times in (([sys.executable, "train.py"], launch), ([sys.executable, "-c", PROBE], probed)):
+            with tempfile.TemporaryDirectory() as run_dir:
+                overrides = ["logger.progress=false", f"hydra.run.dir={run_dir}", "eval.num_starts=1", *args.overrides]
+                batch = ["collector.total_frames=1"]  # rounded up to one batch
+                t = time.time()
+                r = subprocess.run([*command, *batch, *overrides], cwd=ROOT, capture_output=True, text=True)
+                if r.returncode != 0:
+                    sys.exit(r.stderr[-2000:])
+                summary = json.loads((Path(run_dir) / "summary.json").read_text())
+                times.append(summary["collecting_since_unix_seconds"] - t)
+        *_, lib, loaded = r.stdout.strip().splitlines()
+        libraries.append(float(lib.removeprefix("LIBRARIES ")))
+    rests = [total - lib for total, lib in zip(probed, libraries, strict=True)]
     rest = statistics.median(rests)
     print(f"launch to the first training frame: {statistics.median(launch):.2f} s (median of {args.rounds})")
-    print(f"  import torch, torchrl, mujoco: {statistics.median(libraries):.2f} s")
+    print(f"  import torch, torchrl, mujoco, first in a launch: {statistics.median(libraries):.2f} s")
     print(f"  the rest (Python start-up, bfc, Hydra, the envs, the networks): {rest:.2f} s (least {min(rests):.2f} s)")
     print(f"  heavy optional packages the training process imported: {loaded.removeprefix('LOADED ')}")
 
