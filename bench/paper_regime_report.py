@@ -41,7 +41,9 @@ def main() -> None:
         sys.exit(f"error: no finished run in {where}: run `bash bench/paper_regime.sh` first")
     header = (
         f"Runs: `{kept}` (each finished run of `bash bench/paper_regime.sh`, kept by this command). "
-        f"Command: `{COMMAND}`."
+        f"Command: `{COMMAND}`. Every final policy is flown again each time the report is built: the figures "
+        "repeat on one machine, and on another CPU a policy that barely flies can end a few starts differently "
+        '(docs/training.md, "The test figures depend on the CPU").'
     )
     path = write_regime_report(
         [kept],
