@@ -56,12 +56,33 @@ def _kind(rate: float) -> str:
     return "learns" if rate >= LEARNED else ("fails" if rate < NOTHING else "partly")
 
 
-def claims(regime: dict[str, float], bfc: dict[str, float], algos: dict[str, float]) -> list[list[str]]:
+def what_decides(labels, means: dict[str, float], runs: dict[str, list[dict]]) -> str:
+    """Why a verdict on the variants `labels` is undecided, and the frames that would decide it:
+    the frames left in paused runs; else more seeds of a variant that learns partly (its seeds
+    split); else, every run at the end of its schedule without learning, a longer one."""
+    mine = [r for label in labels for r in runs.get(label, [])]
+    left = sum(max(0, int(r["schedule_frames"]) - int(r.get("frames", 0))) for r in mine if r.get("paused"))
+    if left:
+        return f"{left / 1e6:.1f}M frames left in paused runs decide it"
+    schedule = max((int(r["schedule_frames"]) for r in mine), default=0) / 1e6
+    for label in (v for v in labels if v in means and _kind(means[v]) == "partly"):
+        each = ", ".join(f"{100 * (r.get('test', {}).get('protocol') or 0.0):.0f}" for r in runs.get(label, []))
+        return f"{label} learns partly (seeds {each}): more seeds of it, {schedule:g}M frames each, decide it"
+    return f"every run ended its {schedule:g}M-frame schedule unlearned: only a longer schedule could decide it"
+
+
+def claims(
+    regime: dict[str, float], bfc: dict[str, float], algos: dict[str, float], runs: dict | None = None
+) -> list[list[str]]:
     """[claim, the paper, the paper's regime, bfc's regime, what bfc changed] rows, each verdict
     computed from the means (protocol test success of the final policies) by the rules of
-    CLAIM_RULES."""
+    CLAIM_RULES. With the paper's regime's `runs` ({label: [run]}), an undecided verdict there
+    says why and what would decide it (what_decides)."""
 
-    def necessary(means: dict[str, float]) -> str:
+    def why(labels, means: dict[str, float], runs: dict | None) -> str:
+        return f"; {what_decides(labels, means, runs)}" if runs is not None else ""
+
+    def necessary(means: dict[str, float], runs: dict | None = None) -> str:
         jd = {v: means[v] for v in ("jd", "jd_css", "jd_tdts", "jd_css_tdts") if v in means}
         no = {v: means[v] for v in PAPER_NO_POLICY if v in means}
         if not jd or not no:
@@ -72,28 +93,28 @@ def claims(regime: dict[str, float], bfc: dict[str, float], algos: dict[str, flo
             return f"does not hold ({figures})"
         if _kind(no[best_no]) == "fails" and _kind(jd[best_jd]) != "fails":
             return f"holds ({figures})"
-        return f"undecided ({figures})"
+        return f"undecided ({figures}){why([*no, *jd], means, runs)}"
 
-    def ordered(means: dict[str, float]) -> str:
+    def ordered(means: dict[str, float], runs: dict | None = None) -> str:
         order = [v for v in ("jd_css_tdts", "jd_css", "jd_tdts", "jd") if v in means]
         if len(order) < 4:
             return "not measured"
         figures = ", ".join(f"{v} {_pct(means[v])}" for v in order)
         if all(_kind(means[v]) == "fails" for v in order):
-            return f"undecided: none learned ({figures})"
+            return f"undecided: none learned ({figures}){why(order, means, runs)}"
         holds = all(means[a] > means[b] for a, b in zip(order, order[1:], strict=False))
         return f"{'holds' if holds else 'does not hold'} ({figures})"
 
-    def ppo_beats_trpo(means: dict[str, float]) -> str:
+    def ppo_beats_trpo(means: dict[str, float], runs: dict | None = None) -> str:
         ppo, trpo = means.get("jd_css_tdts"), means.get("trpo jd_css_tdts")
         if ppo is None or trpo is None:
             return "not measured"
         figures = f"PPO {_pct(ppo)}, TRPO {_pct(trpo)}"
         if _kind(ppo) == _kind(trpo) == "fails":
-            return f"undecided: neither learned ({figures})"
+            return f"undecided: neither learned ({figures}){why(['jd_css_tdts', 'trpo jd_css_tdts'], means, runs)}"
         return f"{'holds' if ppo > trpo else 'does not hold'} ({figures})"
 
-    def plain_fail(means: dict[str, float]) -> str:
+    def plain_fail(means: dict[str, float], runs: dict | None = None) -> str:
         plain = {k: means[k] for k in ("ppo", "trpo ppo", "ddpg ppo") if k in means}
         if not plain:
             return "not measured"
@@ -105,7 +126,9 @@ def claims(regime: dict[str, float], bfc: dict[str, float], algos: dict[str, flo
             verdict = "does not hold" if all(k == "learns" for k in kinds) else "holds in part"
         else:
             verdict = "undecided"
-        return f"{verdict} ({figures})"
+        unrun = [k.split()[0] for k in ("ppo", "trpo ppo", "ddpg ppo") if k not in plain]
+        missing = f"; {', '.join(unrun)} not run" if unrun else ""
+        return f"{verdict} ({figures}){why(plain, means, runs) if verdict == 'undecided' else ''}{missing}"
 
     bfc_all = {**bfc, **algos}
     changed = (
@@ -116,22 +139,22 @@ def claims(regime: dict[str, float], bfc: dict[str, float], algos: dict[str, flo
         [
             "JD is necessary: without it no variant learns",
             "PPO, CSS, TDTS, CSS-TDTS learned no flight policy",
-            necessary(regime),
+            necessary(regime, runs),
             necessary(bfc_all),
             changed,
         ],
-        ["BFC > JD-CSS > JD-TDTS > JD", "90.5 > 67 > 25 > 16", ordered(regime), ordered(bfc_all), changed],
+        ["BFC > JD-CSS > JD-TDTS > JD", "90.5 > 67 > 25 > 16", ordered(regime, runs), ordered(bfc_all), changed],
         [
             "enhanced PPO beats enhanced TRPO",
             "PPO learned faster and better (figs. 5-7)",
-            ppo_beats_trpo(regime),
+            ppo_beats_trpo(regime, runs),
             ppo_beats_trpo(bfc_all),
             "TRPO with bfc's env and settings (docs/report/algos)",
         ],
         [
             "plain DDPG, TRPO and PPO do not learn",
             "none learned (figs. 5-7)",
-            plain_fail(regime),
+            plain_fail(regime, runs),
             plain_fail(bfc_all),
             changed,
         ],
@@ -144,7 +167,9 @@ CLAIM_RULES = (
     "it fails and one with it does not; it is not when one without it learns; otherwise undecided. An order "
     "holds when each mean is above the next (undecided when all four fail); PPO beats TRPO when its mean is "
     "higher (undecided when both fail); plain algorithms do not learn when all fail, do when all learn, in "
-    "part when some learn. Runs paused on the way are judged as far as they went. The paper's regime: the "
+    "part when some learn. Runs paused on the way are judged as far as they went. An undecided verdict in "
+    "the paper's regime says what would decide it: the frames left in paused runs, more seeds of a variant "
+    "whose seeds split, or a schedule longer than the runs'. The paper's regime: the "
     "runs of this report; bfc's regime: docs/report/table2 and docs/report/algos (2M frames, three seeds)."
 )
 
@@ -255,7 +280,7 @@ def write_regime_report(
         "",
         "| claim | the paper | the paper's regime (this sweep) | bfc's regime | what bfc changed that moves it |",
         "|---|---|---|---|---|",
-        *("| " + " | ".join(row) + " |" for row in claims(regime, bfc, algos)),
+        *("| " + " | ".join(row) + " |" for row in claims(regime, bfc, algos, by_variant)),
         "",
         CLAIM_RULES,
         "",

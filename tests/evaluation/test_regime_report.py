@@ -65,7 +65,7 @@ def test_regime_report_on_a_fake_sweep(tmp_path):
     )
     assert rows["BFC > JD-CSS > JD-TDTS > JD"][1].startswith("does not hold (jd_css_tdts")
     assert rows["enhanced PPO beats enhanced TRPO"][1] == "not measured"
-    assert rows["plain DDPG, TRPO and PPO do not learn"][1] == "holds (ppo 0.0)"
+    assert rows["plain DDPG, TRPO and PPO do not learn"][1] == "holds (ppo 0.0); trpo, ddpg not run"
     assert (tmp_path / "out" / "learning_curves.png").stat().st_size > 10_000
     saved = json.loads((tmp_path / "out" / "table2.json").read_text())
     assert saved["css"][0]["test"]["protocol"] == 0.0
@@ -88,6 +88,30 @@ def test_each_claims_verdict_follows_its_rule():
     trpo = {"jd_css_tdts": 0.9, "trpo jd_css_tdts": 0.95, "ppo": 0.0, "trpo ppo": 0.8}
     assert verdicts(trpo)[2:] == ["does not hold", "holds in part"]
     assert verdicts({"jd": 0.9}) == ["not measured"] * 4
+
+
+def test_an_undecided_verdict_says_what_would_decide_it():
+    """The paper's regime's undecided verdicts name the frames that would decide them: those left
+    in paused runs; else more seeds of a variant whose seeds split; else a longer schedule."""
+    from bfc.evaluation.regime import claims
+
+    def run(rate, frames=20_000_000, paused=False):
+        return {"schedule_frames": 20_000_000, "frames": frames, "paused": paused, "test": {"protocol": rate}}
+
+    runs = {v: [run(0.0)] for v in ("jd_css_tdts", "jd_css", "jd_tdts", "jd", "css")}
+    runs["ppo"] = [run(0.49), run(0.07), run(0.0)]
+    means = {v: sum(r["test"]["protocol"] for r in rs) / len(rs) for v, rs in runs.items()}
+    rows = claims(means, {}, {}, runs)
+    necessary, ordered, _, plain = (row[2] for row in rows)
+    assert necessary.startswith("undecided (best without JD ppo 18.7, best with JD jd 0.0)")
+    split = "ppo learns partly (seeds 49, 7, 0): more seeds of it, 20M frames each, decide it"
+    assert necessary.endswith(f"; {split}")
+    ended = "every run ended its 20M-frame schedule unlearned: only a longer schedule could decide it"
+    assert ordered.endswith(f"; {ended}")
+    assert plain == f"undecided (ppo 18.7); {split}; trpo, ddpg not run"
+    runs["jd"] = [run(0.0, frames=2_000_000, paused=True)]
+    assert claims(means, {}, {}, runs)[1][2].endswith("; 18.0M frames left in paused runs decide it")
+    assert claims(means, {}, {})[0][2] == necessary.split(";")[0]  # bfc's regime (no runs given): no more
 
 
 def test_finished_runs_are_kept_and_the_report_rebuilds_from_them_alone(tmp_path):
