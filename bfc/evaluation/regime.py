@@ -30,6 +30,7 @@ PAPER_NO_POLICY = ("ppo", "css", "tdts", "css_tdts")  # "did not learn a flight 
 TABLE2_ORDER = (*PAPER_TABLE2, *PAPER_NO_POLICY)
 LEARNED = 0.5  # a variant "learns" when its mean final test success is at least this
 NOTHING = 0.1  # and "does not learn" when it is below this
+PLAIN = ("ppo", "trpo ppo", "ddpg ppo")  # the plain algorithms' row labels (figs. 5-7)
 
 
 def protocol_means(by_variant: dict) -> dict[str, float]:
@@ -65,9 +66,10 @@ def what_decides(labels, means: dict[str, float], runs: dict[str, list[dict]]) -
     if left:
         return f"{left / 1e6:.1f}M frames left in paused runs decide it"
     schedule = max((int(r["schedule_frames"]) for r in mine), default=0) / 1e6
-    for label in (v for v in labels if v in means and _kind(means[v]) == "partly"):
-        each = ", ".join(f"{100 * (r.get('test', {}).get('protocol') or 0.0):.0f}" for r in runs.get(label, []))
-        return f"{label} learns partly (seeds {each}): more seeds of it, {schedule:g}M frames each, decide it"
+    split = next((v for v in labels if v in means and _kind(means[v]) == "partly"), None)
+    if split is not None:
+        each = ", ".join(f"{100 * (r.get('test', {}).get('protocol') or 0.0):.0f}" for r in runs.get(split, []))
+        return f"{split} learns partly (seeds {each}): more seeds of it, {schedule:g}M frames each, decide it"
     return f"every run ended its {schedule:g}M-frame schedule unlearned: only a longer schedule could decide it"
 
 
@@ -115,7 +117,7 @@ def claims(
         return f"{'holds' if ppo > trpo else 'does not hold'} ({figures})"
 
     def plain_fail(means: dict[str, float], runs: dict | None = None) -> str:
-        plain = {k: means[k] for k in ("ppo", "trpo ppo", "ddpg ppo") if k in means}
+        plain = {k: means[k] for k in PLAIN if k in means}
         if not plain:
             return "not measured"
         figures = ", ".join(f"{k.split()[0]} {_pct(v)}" for k, v in plain.items())
@@ -126,7 +128,7 @@ def claims(
             verdict = "does not hold" if all(k == "learns" for k in kinds) else "holds in part"
         else:
             verdict = "undecided"
-        unrun = [k.split()[0] for k in ("ppo", "trpo ppo", "ddpg ppo") if k not in plain]
+        unrun = [k.split()[0] for k in PLAIN if k not in plain]
         missing = f"; {', '.join(unrun)} not run" if unrun else ""
         return f"{verdict} ({figures}){why(plain, means, runs) if verdict == 'undecided' else ''}{missing}"
 
