@@ -5,7 +5,7 @@ policies flies, search for motor commands that avoid the crash (bfc.evaluation.f
 
 Flies every policy on the row's starts (100, `--seed`: 0 the test starts, 1 the validation
 starts) on its airframe, then searches each start that every policy misses: "saved" (a plan flew
-it uncrashed to an upright, slow end: the start can be flown, the miss is the controllers'),
+it uncrashed to an upright, slow end: the crash can be avoided, the miss is the controllers'),
 or "not found" (the search's budget is printed: no proof either way). Deterministic.
 """
 
@@ -77,7 +77,7 @@ def main() -> None:
     print(
         f"flown by a policy {flown_by_one}, saved by the search {sum(saved)}, "
         f"not found {len(saved) - sum(saved)}: at least {(flown_by_one + sum(saved)) / args.num_starts:.2f} "
-        f"of the row can be flown"
+        f"of the row's starts can be kept from crashing"
     )
 
 

@@ -5,7 +5,7 @@ released at rest with slow motors, low and tilted, a body may reach the floor to
 it commands. `search_start` answers per start with the cross-entropy method on the real
 simulator: it flies a population of open-loop plans (the four motor speeds, held for
 `knot_seconds` each) from that one start through the row's body, and keeps the best. A plan that
-ends its horizon uncrashed, upright and slow proves the start can be flown (the controller has the
+ends its horizon uncrashed, upright and slow proves the crash can be avoided (the controller has the
 rest of the flight to reach the goal; resting level on the floor is no crash, and a ground start
 takes off). A search that finds none proves nothing: it reports how hard it looked.
 
