@@ -31,7 +31,10 @@ def test_a_level_start_high_up_is_saved_and_its_plan_flies_uncrashed():
     assert CF.min_rotor_speed <= r.plan.min() and r.plan.max() <= CF.max_rotor_speed
     controller = TensorDictModule(_OpenLoop(r.plan[None], 5), [keys.ODOMETRY, keys.GOAL], [keys.ACTION])
     f = fly(controller, _start(2.0, roll=0.3)[None], seconds=2.0, control_hz=50.0, nominal=dataclasses.asdict(CF))
-    assert bool(f.get("alive")[0, -1])
+    assert bool(f.get("alive")[0, -1])  # replayed: uncrashed, and ending as the search said, upright and slow
+    q = f.get(keys.QUATERNION)[0, -1]
+    assert 1 - 2 * (q[1] ** 2 + q[2] ** 2) > budget.upright_cos
+    assert f.get(keys.LINEAR_VELOCITY)[0, -1].norm() < budget.slow_speed
 
 
 def test_a_start_falling_fast_just_above_the_floor_is_not_saved():
