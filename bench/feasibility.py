@@ -19,7 +19,6 @@ import torch
 
 from bfc.agent.policy_file import load_policy
 from bfc.evaluation.feasibility import SearchBudget, search_start
-from bfc.evaluation.flying import airframe_of
 from bfc.evaluation.judge import success
 from bfc.evaluation.suites import condition, fly_condition
 
@@ -47,8 +46,8 @@ def main() -> None:
         ok = success(fly_condition(path, args.row, num_starts=args.num_starts, seed=args.seed))
         print(f"{path}: {ok.float().mean().item():.2f} on {args.row!r} (seed {args.seed})", flush=True)
         missed &= ~ok
-    nominal = airframe_of(args.policies[0])
     spec, _ = load_policy(args.policies[0])
+    nominal = spec.nominal_airframe
     starts, wind, flown = row.world(nominal, args.num_starts, args.seed)
     indices = torch.nonzero(missed).flatten().tolist()
     print(f"# {len(indices)} starts no policy flies; searching {budget.population} x {budget.iterations} plans each")
