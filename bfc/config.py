@@ -215,6 +215,9 @@ class LossConfig:
     # an entropy bonus (extras=none: 0): it keeps the std wide enough, late in a latency-trained run,
     # to learn the flip from near upside down (docs/training.md, "Latency in training")
     entropy_coeff: float = 0.004
+    # the mirror loss (bfc/training/mirror.py): the mean square of the policy's mean in a mirrored
+    # world against the mirror of its mean, over the airframe's reflections (0: off; PPO only)
+    mirror_coeff: float = 0.0
     critic_coeff: float = 0.5
     critic_loss: str = "l2"  # l2 | l1 | smooth_l1: TorchRL's loss_critic_type
     # ClipPPOLoss's clip_value: the new value kept within this of the collected one (Baselines'
@@ -807,6 +810,18 @@ def validate(cfg) -> None:
     check(lo.kind in ("clip", "kl"), "loss.kind", "'clip' or 'kl'", lo.kind)
     check(lo.implementation in LOSS_IMPLEMENTATIONS, "loss.implementation", "'bfc' or 'torchrl'", lo.implementation)
     check(lo.critic_loss in CRITIC_LOSSES, "loss.critic_loss", ", ".join(CRITIC_LOSSES), lo.critic_loss)
+    check(
+        isinstance(lo.mirror_coeff, (int, float)) and 0 <= lo.mirror_coeff < math.inf,
+        "loss.mirror_coeff",
+        "a number >= 0 (0: off)",
+        lo.mirror_coeff,
+    )
+    check(
+        lo.mirror_coeff == 0 or cfg.algo.name == "ppo",
+        "loss.mirror_coeff",
+        f"0 with algo={cfg.algo.name} (the mirror loss is PPO's)",
+        lo.mirror_coeff,
+    )
     _check_updates("loss", lo.gamma, lo.lmbda, ("epochs", lo.epochs), ("num_minibatches", lo.num_minibatches), c)
     if lo.minibatch_size is not None:
         check(

@@ -184,6 +184,28 @@ class AirframeParams:
         places = _PLACES[self.layout]
         return ", ".join(f"{i} {place} {spin}" for i, (place, spin) in enumerate(zip(places, spins, strict=True)))
 
+    def reflections(self) -> tuple[tuple[int, int, tuple[int, int, int, int]], ...]:
+        """The airframe's symmetries that keep z: (sx, sy, motors) for each S = diag(sx, sy, 1)
+        among the mirrors x -> -x and y -> -y and the half turn (both) that maps every rotor onto
+        a rotor spinning as the image of its spin (a mirror reverses it); `motors[j]` is the motor
+        whose image sits at motor j. An "x" has all three, a "+" the half turn only (its mirrors
+        are the diagonals). The inertia is diagonal, so S keeps it. For the mirror loss
+        (bfc.training.mirror): the same physics seen in a mirror."""
+        found = []
+        for sx, sy in ((-1, 1), (1, -1), (-1, -1)):
+            motors = []
+            for x, y, _ in self.rotor_positions:
+                image = [
+                    j
+                    for j, ((xj, yj, _), s) in enumerate(zip(self.rotor_positions, self.rotor_spins, strict=True))
+                    if abs(xj - sx * x) < 1e-9 and abs(yj - sy * y) < 1e-9
+                ]
+                motors.append(image[0] if image else None)
+            spins = self.rotor_spins
+            if None not in motors and all(spins[j] == sx * sy * spins[i] for i, j in enumerate(motors)):
+                found.append((sx, sy, tuple(motors)))
+        return tuple(found)
+
     def torque_rows(self) -> tuple[tuple[float, float, float], ...]:
         """Per rotor, the body torque (x, y, z) one newton of its thrust makes: r x F = (y, -x, 0)
         and the reaction yaw moment spin * moment_constant."""

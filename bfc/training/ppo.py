@@ -8,8 +8,10 @@ from tensordict import TensorDictBase
 from torchrl.objectives import ClipPPOLoss, KLPENPPOLoss
 
 from bfc import keys
+from bfc.agent import gaussian_net
 from bfc.config import minibatch_size
 from bfc.training.advantage import compute_advantage, make_gae
+from bfc.training.mirror import make_mirrors
 from bfc.training.ppo_step import PPOStep
 
 # What the loss reads; selecting these first makes every minibatch gather cheaper.
@@ -30,6 +32,7 @@ LOSS_TAGS = {
     "entropy": "loss/entropy",
     "kl_approx": "loss/approx_kl",
     "clip_fraction": "loss/clip_fraction",
+    "mirror": "loss/mirror",
 }
 
 
@@ -58,9 +61,10 @@ class PPO:
     def __init__(self, cfg, actor, critic):
         self.cfg = cfg
         self.loss_module, self.advantage = make_loss(cfg, actor, critic)
+        self.mirrors, self.actor_net = make_mirrors(cfg), gaussian_net(actor)
         o = cfg.optim
         if cfg.loss.kind == "clip" and cfg.loss.implementation == "bfc":
-            self.step = PPOStep(self.loss_module, actor, critic, o.lr, o.adam_eps, o.max_grad_norm)
+            self.step = PPOStep(self.loss_module, actor, critic, o.lr, o.adam_eps, o.max_grad_norm, self.mirrors)
             self.optimizer = self.step.optimizer
         else:
             self.step = None
@@ -96,14 +100,23 @@ class PPO:
         ]
         if step.clip_value is not None:  # the collected value, which clip_value keeps the new one near
             columns.append(data.get("state_value"))
+        columns = [c.reshape(data.numel(), -1) for c in columns]
+        m = len(self.mirrors or ())
+        if m:  # the observations in each mirror, side by side (m x size columns)
+            seen = step.observe(self.mirrors.observations(data.get(keys.OBSERVATION).reshape(data.numel(), -1)))
+            columns.append(seen.transpose(0, 1).flatten(1))
         widths = [c.shape[-1] for c in columns]
-        table = torch.cat(columns, -1).reshape(data.numel(), -1)
+        table = torch.cat(columns, -1)
         total, count = torch.zeros(len(PPOStep.METRICS)), 0
         for index in self._minibatches(table.shape[0]):
-            obs, action, log_prob, adv, target, *old_value = table[index].split(widths, -1)
-            total += step(obs, action, log_prob.squeeze(-1), adv, target, *old_value)
+            obs, action, log_prob, adv, target, *rest = table[index].split(widths, -1)
+            mirrored = rest.pop().view(len(index), m, -1).transpose(0, 1) if m else None
+            total += step(obs, action, log_prob.squeeze(-1), adv, target, *rest, mirrored=mirrored)
             count += 1
-        return {LOSS_TAGS[key]: float(value) / count for key, value in zip(PPOStep.METRICS, total, strict=True)}
+        metrics = {LOSS_TAGS[key]: float(value) / count for key, value in zip(PPOStep.METRICS, total, strict=True)}
+        if not m:
+            del metrics["loss/mirror"]
+        return metrics
 
     def _update_torchrl(self, data: TensorDictBase) -> dict[str, float]:
         """TensorDict minibatches through TorchRL's loss module, autograd, torch's clipping and Adam."""
@@ -112,8 +125,16 @@ class PPO:
         sums: dict[str, torch.Tensor] = {}
         count = 0
         for index in self._minibatches(flat.shape[0]):
-            out = self.loss_module(flat[index])
+            batch = flat[index]
+            out = self.loss_module(batch)
             total = out["loss_objective"] + out["loss_critic"] + out.get("loss_entropy", 0.0)
+            if self.mirrors is not None:
+                obs = batch.get(keys.OBSERVATION)
+                mirrored = self.actor_net.mean(self.mirrors.observations(obs).flatten(0, 1)).view(
+                    len(self.mirrors), len(obs), -1
+                )
+                out["mirror"], _ = self.mirrors.loss(self.actor_net.mean(obs), mirrored)
+                total = total + out["mirror"]
             optimizer.zero_grad(set_to_none=True)
             total.backward()
             torch.nn.utils.clip_grad_norm_(params, self.cfg.optim.max_grad_norm)

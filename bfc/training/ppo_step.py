@@ -91,9 +91,9 @@ class PPOStep:
     their gradients views of another, so the clipping is one norm and Adam one fused kernel.
     """
 
-    METRICS = ("loss_objective", "loss_critic", "entropy", "kl_approx", "clip_fraction")
+    METRICS = ("loss_objective", "loss_critic", "entropy", "kl_approx", "clip_fraction", "mirror")
 
-    def __init__(self, loss, actor, critic, lr: float, adam_eps: float, max_grad_norm: float):
+    def __init__(self, loss, actor, critic, lr: float, adam_eps: float, max_grad_norm: float, mirrors=None):
         unsupported = {
             "separate_losses": loss.separate_losses or None,
             "advantage_norm": getattr(loss, "advantage_norm", None),
@@ -123,6 +123,7 @@ class PPOStep:
         self.eps = torch.finfo(torch.float).resolution  # torchrl's advantage standardisation
         self.squash, self.max_log_std = net.squash, net.max_log_std
         self.max_grad_norm = float(max_grad_norm)
+        self.mirrors = mirrors  # bfc.training.mirror.Mirrors, or None
 
         params = list(loss.parameters())
         mine = [*net.mlp.parameters(), net.log_std, *value.parameters()]
@@ -153,15 +154,19 @@ class PPOStep:
             return self.obs_norm(obs)
 
     @torch.no_grad()
-    def __call__(self, obs, action, old_log_prob, advantage, value_target, old_value=None) -> torch.Tensor:
-        """One step on a minibatch of (n, .) columns (`obs` already through `observe`); returns
-        the five METRICS as one tensor."""
+    def __call__(self, obs, action, old_log_prob, advantage, value_target, old_value=None, mirrored=None):
+        """One step on a minibatch of (n, .) columns (`obs` already through `observe`; `mirrored`,
+        with mirrors, (m, n, size): the observations in each mirror, through `observe` too);
+        returns the METRICS as one tensor."""
         n = obs.shape[0]
         advantage = ((advantage - advantage.mean()) / advantage.std().clamp_min(self.eps)).squeeze(-1)
-        # the actor: log N(action; loc, scale) and the clipped surrogate
-        loc, actor_inputs = self.actor.forward(obs)
+        # the actor: log N(action; loc, scale) and the clipped surrogate (and, with mirrors, its
+        # means on the mirrored observations in the same pass)
+        rows = obs if mirrored is None else torch.cat((obs, mirrored.flatten(0, 1)))
+        loc_all, actor_inputs = self.actor.forward(rows)
         if self.squash:
-            loc = loc.tanh()
+            loc_all = loc_all.tanh()
+        loc = loc_all[:n]
         log_std = self.log_std if self.max_log_std is None else self.log_std.clamp(max=self.max_log_std)
         scale = log_std.exp()
         log_prob = GaussianActor.log_prob(action, loc, scale)
@@ -180,6 +185,13 @@ class PPOStep:
         if self.max_log_std is not None:
             grad_log_std = grad_log_std * (self.log_std <= self.max_log_std)
         self.grad_log_std.copy_(grad_log_std)
+        mirror = torch.zeros(())
+        if mirrored is not None:
+            mirror, grad_mirrored = self.mirrors.loss(loc, loc_all[n:].view(mirrored.shape[0], n, -1))
+            grad_mirrored = grad_mirrored.flatten(0, 1)
+            if self.squash:
+                grad_mirrored = grad_mirrored * (1 - loc_all[n:].square())
+            grad_loc = torch.cat((grad_loc, grad_mirrored))
         self.actor.backward(grad_loc, actor_inputs)
         # the critic
         value, critic_inputs = self.critic.forward(obs)
@@ -207,6 +219,7 @@ class PPOStep:
                 entropy,
                 -log_weight.mean(),
                 (clipped != log_weight).float().mean(),
+                mirror,
             )
         )
 

@@ -66,6 +66,46 @@ def observation_size(
     return base + (3 if position_integral else 0) + 4 * command_history
 
 
+def mirror_map(
+    kind: str,
+    include_acceleration: bool,
+    position_integral: bool,
+    command_history: int,
+    sx: int,
+    sy: int,
+    motors,
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """(index, sign): the observation of the world seen through S = diag(sx, sy, 1) about the goal's
+    vertical (an AirframeParams.reflections() entry) is `obs[..., index] * sign`. Vectors, world or
+    heading frame, go to S v (the yaw goes to sx sy yaw, which turns the heading frame alike); the
+    attitude to S R S (roll sy roll, pitch sx pitch); body rates, a pseudovector, to det(S) S w;
+    motor-space inputs swap motors as `motors` says."""
+    idx, sign = [], []
+    at = 0
+
+    def put(order, signs):
+        nonlocal at
+        idx.extend(at + i for i in order)
+        sign.extend(signs)
+        at += len(order)
+
+    s = (sx, sy, 1)
+    vector, rates = (range(3), s), (range(3), (sy, sx, sx * sy))
+    motor = (list(motors), (1, 1, 1, 1))
+    if kind == "odometry":
+        parts = [vector, vector, vector, rates, rates, rates]  # position, velocity, acceleration, rpy, w, dw
+    else:
+        matrix = (range(9), [s[i] * s[j] for i in range(3) for j in range(3)])
+        parts = [vector, matrix, vector, rates, motor]
+        parts += [vector, rates] if include_acceleration else []
+    parts += [vector] if position_integral else []
+    parts += [motor] * command_history
+    for order, signs in parts:
+        put(order, signs)
+    check(at == observation_size(kind, include_acceleration, position_integral, command_history), "mirror", "", at)
+    return torch.tensor(idx), torch.tensor(sign, dtype=torch.float32)
+
+
 def check_history(command_history) -> None:
     whole = isinstance(command_history, int) and not isinstance(command_history, bool)
     check(whole and 0 <= command_history <= 50, "model.command_history", "a whole number 0-50", command_history)

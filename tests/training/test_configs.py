@@ -180,6 +180,20 @@ def test_negative_frames_fail_with_a_clear_message():
     assert "collector.total_frames must be > 0" in one_line_error(run_cli("collector.total_frames=-5"))
 
 
+@pytest.mark.parametrize(
+    "overrides, message",
+    [
+        (["loss.mirror_coeff=-1"], "error: loss.mirror_coeff must be a number >= 0 (0: off), got -1.0"),
+        (
+            ["loss.mirror_coeff=1", "algo=trpo"],
+            "error: loss.mirror_coeff must be 0 with algo=trpo (the mirror loss is PPO's)",
+        ),
+    ],
+)
+def test_a_bad_mirror_coefficient_is_one_line(overrides, message):
+    assert one_line_error(run_cli(*overrides)).startswith(message)
+
+
 def test_missing_resume_dir_fails_cleanly():
     assert "no checkpoints/last.pt" in one_line_error(run_cli("resume=/nonexistent/run"))
 

@@ -1,6 +1,8 @@
 """bfc's PPO step (its gradients written out) against TorchRL's ClipPPOLoss, autograd and torch's
 Adam on the same minibatch: the same values and gradients to float rounding."""
 
+import copy
+
 import pytest
 import torch
 from torchrl.objectives import ClipPPOLoss
@@ -9,6 +11,7 @@ from bfc.agent import PolicySpec, make_critic, torchrl_actor
 from bfc.config import compose
 from bfc.factory import make_env
 from bfc.training.advantage import compute_advantage
+from bfc.training.mirror import make_mirrors
 from bfc.training.ppo import PPO, make_loss
 from bfc.training.ppo_step import PPOStep
 
@@ -71,8 +74,41 @@ def test_the_step_gives_clip_ppo_losss_values_and_gradients(case):
     step = PPOStep(loss, actor, critic, lr=0.0, adam_eps=1e-8, max_grad_norm=1e9)  # lr 0: read the gradient
     assert all(torch.equal(a, p) for a, p in zip(before, loss.parameters(), strict=True))  # moved, not changed
     metrics = dict(zip(PPOStep.METRICS, step(*_columns(step, flat)), strict=True))
+    assert float(metrics.pop("mirror")) == 0.0  # no mirrors, no mirror loss
     for key, value in metrics.items():
         torch.testing.assert_close(value, reference[key].detach().reshape(()), rtol=1e-5, atol=1e-7, msg=key)
+    start = 0
+    for p in step.params:
+        grad = step.flat.grad[start : start + p.numel()].view_as(p)
+        want = expected[id(p)]
+        assert (grad - want).abs().max() <= RELATIVE * want.abs().max(), tuple(p.shape)
+        start += p.numel()
+
+
+@pytest.mark.parametrize(
+    "overrides",
+    [
+        ["env.airframe=x500", "loss.mirror_coeff=2"],  # both mirrors and the half turn, bfc's observation
+        ["env.airframe=crazyflie", "+preset=paper", "loss.mirror_coeff=0.5"],  # the paper's, statistics, tanh
+        ["loss.mirror_coeff=1", "model.squash=true"],  # a "+": the half turn only, a squashed mean
+    ],
+)
+def test_the_step_with_mirrors_gives_autograds_gradients_of_the_mirror_loss_too(overrides):
+    """With `loss.mirror_coeff` the step adds the mirror loss (bfc.training.mirror) in the actor's
+    pass: its value and every gradient as autograd gives them for ClipPPOLoss plus that loss."""
+    cfg, net, actor, critic, loss, flat = _batch(overrides)
+    mirrors = make_mirrors(cfg)
+    seen = mirrors.observations(flat["observation"])
+    reference = loss(flat)
+    mirror, _ = mirrors.loss(net.mean(flat["observation"]), net.mean(seen))
+    assert float(mirror.detach()) > 0
+    total = reference["loss_objective"] + reference["loss_critic"] + reference.get("loss_entropy", 0.0) + mirror
+    loss.zero_grad()
+    total.backward()
+    expected = {id(p): p.grad.clone() for p in loss.parameters()}
+    step = PPOStep(loss, actor, critic, lr=0.0, adam_eps=1e-8, max_grad_norm=1e9, mirrors=mirrors)
+    metrics = dict(zip(PPOStep.METRICS, step(*_columns(step, flat), mirrored=step.observe(seen)), strict=True))
+    torch.testing.assert_close(metrics["mirror"], mirror.detach(), rtol=1e-5, atol=1e-8)
     start = 0
     for p in step.params:
         grad = step.flat.grad[start : start + p.numel()].view_as(p)
@@ -157,3 +193,20 @@ def test_both_implementations_update_and_report_the_same_metrics(implementation)
     assert set(metrics) == {"loss/objective", "loss/critic", "loss/entropy", "loss/approx_kl", "loss/clip_fraction"}
     assert all(torch.isfinite(torch.tensor(v)) for v in metrics.values())
     assert not torch.equal(net.mlp[0].weight, before)
+
+
+def test_both_implementations_take_the_same_update_with_the_mirror_loss():
+    """A whole PPO.update with mirrors (the batch's mirrored columns, their minibatches): bfc's step
+    and TorchRL's loss plus the mirror term under autograd end at the same weights."""
+    cfg, _, actor, critic, _, flat = _batch(["env.airframe=x500", "loss.mirror_coeff=2"])
+    data = flat.exclude("advantage", "value_target").reshape(16, -1)
+    weights, logged = [], []
+    for implementation in ("bfc", "torchrl"):
+        cfg.loss.implementation = implementation
+        mine, its_critic = copy.deepcopy(actor), copy.deepcopy(critic)
+        torch.manual_seed(5)  # the same minibatches
+        metrics = PPO(cfg, mine, its_critic).update(data.clone())
+        weights.append(torch.cat([p.detach().reshape(-1) for p in [*mine.parameters(), *its_critic.parameters()]]))
+        logged.append(metrics["loss/mirror"])
+    torch.testing.assert_close(weights[0], weights[1], rtol=0, atol=1e-5)
+    assert logged[0] == pytest.approx(logged[1], rel=1e-4) and logged[0] > 0
