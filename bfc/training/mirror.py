@@ -5,7 +5,9 @@ of its mean (Yu et al. 2018, "Learning Symmetric and Low-Energy Locomotion"; rsl
 Why: an "x" airframe flies the same in a mirror (x -> -x, y -> -y, or the half turn), yet PPO
 learns a preferred way to turn over from upside down and takes the long way round from the
 starts tilted the other way (the X500's seed 0 recovers 0.46 of development starts tilted over
-150 deg with the pitch positive, 0.90 with it negative; docs/airframes.md). The loss is the mean
+150 deg with the pitch positive, 0.90 with it negative). With the loss the lean goes and the
+policy hovers closer wherever something pushes it (docs/airframes.md, "X500: the mirror loss" and
+"Crazyflie: the mirror loss"). The loss is the mean
 square of mean(M s) - P mean(s) over every reflection the airframe has (AirframeParams.reflections),
 the mirrored side alone moved (the target is held), as rsl_rl does; it changes training only:
 the network, the policy file and the exports are as before.

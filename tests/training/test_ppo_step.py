@@ -60,6 +60,16 @@ def _columns(step, flat):
     return obs, flat["action"], flat["action_log_prob"], flat["advantage"], flat["value_target"], *old_value
 
 
+def _assert_gradients(step, expected):
+    """Each parameter's slot of the step's flat gradient against `expected` (id -> gradient)."""
+    start = 0
+    for p in step.params:
+        grad = step.flat.grad[start : start + p.numel()].view_as(p)
+        want = expected[id(p)]
+        assert (grad - want).abs().max() <= RELATIVE * want.abs().max(), tuple(p.shape)
+        start += p.numel()
+
+
 @pytest.mark.parametrize("case", CASES)
 def test_the_step_gives_clip_ppo_losss_values_and_gradients(case):
     cfg, _, actor, critic, loss, flat = _batch(CASES[case])
@@ -77,12 +87,7 @@ def test_the_step_gives_clip_ppo_losss_values_and_gradients(case):
     assert float(metrics.pop("mirror")) == 0.0  # no mirrors, no mirror loss
     for key, value in metrics.items():
         torch.testing.assert_close(value, reference[key].detach().reshape(()), rtol=1e-5, atol=1e-7, msg=key)
-    start = 0
-    for p in step.params:
-        grad = step.flat.grad[start : start + p.numel()].view_as(p)
-        want = expected[id(p)]
-        assert (grad - want).abs().max() <= RELATIVE * want.abs().max(), tuple(p.shape)
-        start += p.numel()
+    _assert_gradients(step, expected)
 
 
 @pytest.mark.parametrize(
@@ -109,12 +114,7 @@ def test_the_step_with_mirrors_gives_autograds_gradients_of_the_mirror_loss_too(
     step = PPOStep(loss, actor, critic, lr=0.0, adam_eps=1e-8, max_grad_norm=1e9, mirrors=mirrors)
     metrics = dict(zip(PPOStep.METRICS, step(*_columns(step, flat), mirrored=step.observe(seen)), strict=True))
     torch.testing.assert_close(metrics["mirror"], mirror.detach(), rtol=1e-5, atol=1e-8)
-    start = 0
-    for p in step.params:
-        grad = step.flat.grad[start : start + p.numel()].view_as(p)
-        want = expected[id(p)]
-        assert (grad - want).abs().max() <= RELATIVE * want.abs().max(), tuple(p.shape)
-        start += p.numel()
+    _assert_gradients(step, expected)
 
 
 def test_a_step_moves_the_weights_as_torchs_adam_after_clipping():
