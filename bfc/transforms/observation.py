@@ -80,15 +80,6 @@ def mirror_map(
     heading frame, go to S v (the yaw goes to sx sy yaw, which turns the heading frame alike); the
     attitude to S R S (roll sy roll, pitch sx pitch); body rates, a pseudovector, to det(S) S w;
     motor-space inputs swap motors as `motors` says."""
-    idx, sign = [], []
-    at = 0
-
-    def put(order, signs):
-        nonlocal at
-        idx.extend(at + i for i in order)
-        sign.extend(signs)
-        at += len(order)
-
     s = (sx, sy, 1)
     vector, rates = (range(3), s), (range(3), (sy, sx, sx * sy))
     motor = (list(motors), (1, 1, 1, 1))
@@ -100,9 +91,11 @@ def mirror_map(
         parts += [vector, rates] if include_acceleration else []
     parts += [vector] if position_integral else []
     parts += [motor] * command_history
-    for order, signs in parts:
-        put(order, signs)
-    check(at == observation_size(kind, include_acceleration, position_integral, command_history), "mirror", "", at)
+    idx, sign, at = [], [], 0
+    for order, signs in parts:  # each part's own indices, shifted to where it starts
+        idx += [at + i for i in order]
+        sign += list(signs)
+        at += len(order)
     return torch.tensor(idx), torch.tensor(sign, dtype=torch.float32)
 
 

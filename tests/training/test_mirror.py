@@ -3,6 +3,7 @@ physics, the observation's index-and-sign map, and the loss making a policy symm
 
 import dataclasses
 import math
+from types import SimpleNamespace
 
 import pytest
 import torch
@@ -114,10 +115,9 @@ def test_the_observation_of_the_mirrored_world_is_the_mapped_observation(kind):
     last, integral, past = torch.rand(n, 4) * 2 - 1, torch.randn(n, 3) * 0.3, torch.rand(n, history, 4) * 2 - 1
     plain = obs.build(odo, goal, last, integral, past)
     assert plain.shape[-1] == observation_size(kind, True, True, history)
-    model = dataclasses.make_dataclass("M", [])()
-    model.observation, model.include_acceleration, model.position_integral, model.command_history = (
-        kind, True, True, history,
-    )  # fmt: skip
+    model = SimpleNamespace(
+        observation=kind, include_acceleration=True, position_integral=True, command_history=history
+    )
     mirrors = Mirrors(airframe_params("x500"), model, 1.0)
     for (sx, sy, motors), view in zip(airframe_params("x500").reflections(), mirrors.observations(plain), strict=True):
         m = list(motors)
