@@ -218,6 +218,13 @@ class LossConfig:
     # the mirror loss (bfc/training/mirror.py): the mean square of the policy's mean in a mirrored
     # world against the mirror of its mean, over the airframe's reflections (0: off; PPO only)
     mirror_coeff: float = 0.0
+    # all: each row mirrored through every reflection (an "x" has three: four times the actor's
+    # rows) | one: through one, in turn by its place in the batch (the same loss in expectation,
+    # half the actor's rows)
+    mirror_reflections: str = "all"
+    # the mirror loss from this frame on (0: from the first batch): the first flights are learned at
+    # the update's full speed, the symmetry taught after
+    mirror_from_frames: int = 0
     critic_coeff: float = 0.5
     critic_loss: str = "l2"  # l2 | l1 | smooth_l1: TorchRL's loss_critic_type
     # ClipPPOLoss's clip_value: the new value kept within this of the collected one (Baselines'
@@ -815,6 +822,13 @@ def validate(cfg) -> None:
         "loss.mirror_coeff",
         "a number >= 0 (0: off)",
         lo.mirror_coeff,
+    )
+    check(lo.mirror_reflections in ("all", "one"), "loss.mirror_reflections", "'all' or 'one'", lo.mirror_reflections)
+    check(
+        isinstance(lo.mirror_from_frames, int) and lo.mirror_from_frames >= 0,
+        "loss.mirror_from_frames",
+        "an integer >= 0 (the frames after which the mirror loss runs)",
+        lo.mirror_from_frames,
     )
     check(
         lo.mirror_coeff == 0 or cfg.algo.name == "ppo",

@@ -87,7 +87,7 @@ class DDPG:
         )
         self.steps = 0
 
-    def update(self, data) -> dict[str, float]:
+    def update(self, data, frames: int = 0) -> dict[str, float]:
         self.buffer.extend(data.select(*_KEYS).reshape(-1).clone())
         if len(self.buffer) < self.algo.warmup_frames:
             return {}

@@ -1,6 +1,7 @@
 """The learner registry: `algo.name` -> the class that trains the policy.
 
-Every learner has the same interface: `update(data) -> metrics`, `optimizers` (the learning-rate
+Every learner has the same interface: `update(data, frames) -> metrics` (`frames`: those trained
+on before this batch, which a schedule reads), `optimizers` (the learning-rate
 anneal scales them all), `state_dict()` / `load_state_dict()` (its part of a checkpoint), and
 is built from the actor, the critic and its own config section (PPO `loss`, TRPO `algo.trpo`,
 DDPG `algo.ddpg`; all of them `optim`).

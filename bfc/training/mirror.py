@@ -7,10 +7,12 @@ learns a preferred way to turn over from upside down and takes the long way roun
 starts tilted the other way (the X500's seed 0 recovers 0.46 of development starts tilted over
 150 deg with the pitch positive, 0.90 with it negative). With the loss the lean goes and the
 policy hovers closer wherever something pushes it (docs/airframes.md, "X500: the mirror loss" and
-"Crazyflie: the mirror loss"). The loss is the mean
-square of mean(M s) - P mean(s) over every reflection the airframe has (AirframeParams.reflections),
-the mirrored side alone moved (the target is held), as rsl_rl does; it changes training only:
-the network, the policy file and the exports are as before.
+"Crazyflie: the mirror loss"). The loss is the mean square of mean(M s) - P mean(s) over every
+reflection the airframe has (AirframeParams.reflections), the mirrored side alone moved (the
+target is held), as rsl_rl does; it changes training only: the network, the policy file and the
+exports are as before. Two cheaper forms, for a user's own trade (tried on the built-ins, not
+kept: docs/training.md): one reflection a row (`loss.mirror_reflections=one`) and the loss from
+`loss.mirror_from_frames` on (PPO.update).
 """
 
 from __future__ import annotations
@@ -23,38 +25,54 @@ from bfc.transforms.observation import mirror_map
 
 class Mirrors:
     """Every reflection of an airframe, as index-and-sign maps over the policy's observation and
-    index maps over its four actions."""
+    index maps over its four actions. `one`: each row is mirrored through one reflection, the
+    reflections in turn by the row's place in the batch (`loss.mirror_reflections=one`), not
+    through all of them: the same loss in expectation at a third of the mirrored rows of an "x"."""
 
-    def __init__(self, airframe: AirframeParams, model, coeff: float):
-        self.coeff = float(coeff)
-        self.maps = []
-        for sx, sy, motors in airframe.reflections():
-            index, sign = mirror_map(
-                model.observation,
-                model.include_acceleration,
-                model.position_integral,
-                model.command_history,
-                sx,
-                sy,
-                motors,
+    def __init__(self, airframe: AirframeParams, model, coeff: float, one: bool = False):
+        self.coeff, self.one = float(coeff), bool(one)
+        maps = [
+            (
+                *mirror_map(
+                    model.observation,
+                    model.include_acceleration,
+                    model.position_integral,
+                    model.command_history,
+                    sx,
+                    sy,
+                    motors,
+                ),
+                torch.tensor(motors),
             )
-            self.maps.append((index, sign, torch.tensor(motors)))
+            for sx, sy, motors in airframe.reflections()
+        ]
+        self.index, self.sign, self.motors = (torch.stack(parts) for parts in zip(*maps, strict=True))
 
     def __len__(self) -> int:
-        return len(self.maps)
+        return len(self.motors)
 
-    def observations(self, obs: torch.Tensor) -> torch.Tensor:
-        """(m, n, size): `obs` (n, size) seen in each of the m mirrors."""
-        return torch.stack([obs[:, index] * sign for index, sign, _ in self.maps])
+    def reflection(self, rows: torch.Tensor) -> torch.Tensor | None:
+        """The reflection each of the batch's `rows` (their places in it) is mirrored through, or
+        None (every reflection)."""
+        return rows % len(self) if self.one else None
 
-    def actions(self, loc: torch.Tensor) -> torch.Tensor:
-        """(m, n, 4): the actions `loc` (n, 4) in each mirror."""
-        return torch.stack([loc[:, motors] for _, _, motors in self.maps])
+    def observations(self, obs: torch.Tensor, reflection: torch.Tensor | None = None) -> torch.Tensor:
+        """(m, n, size): `obs` (n, size) seen in each of the m mirrors; with `reflection` (n,),
+        (1, n, size): each row in its own."""
+        if reflection is None:
+            return obs[:, self.index].mul(self.sign).transpose(0, 1)
+        return obs.gather(1, self.index[reflection]).mul(self.sign[reflection]).unsqueeze(0)
 
-    def loss(self, loc: torch.Tensor, mirrored_loc: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    def actions(self, loc: torch.Tensor, reflection: torch.Tensor | None = None) -> torch.Tensor:
+        """(m, n, 4): the actions `loc` (n, 4) in each mirror; with `reflection`, (1, n, 4)."""
+        if reflection is None:
+            return loc[:, self.motors].transpose(0, 1)
+        return loc.gather(1, self.motors[reflection]).unsqueeze(0)
+
+    def loss(self, loc, mirrored_loc, reflection=None) -> tuple[torch.Tensor, torch.Tensor]:
         """(loss, d loss / d mirrored_loc): coeff * mean square of `mirrored_loc` (m, n, 4), the means
         on the mirrored observations, against the mirror of `loc` (n, 4), held."""
-        diff = mirrored_loc - self.actions(loc.detach())
+        diff = mirrored_loc - self.actions(loc.detach(), reflection)
         return self.coeff * diff.square().mean(), diff * (2 * self.coeff / diff.numel())
 
 
@@ -66,4 +84,4 @@ def make_mirrors(cfg) -> Mirrors | None:
     from omegaconf import OmegaConf
 
     airframe = AirframeParams(**OmegaConf.to_container(cfg.env.airframe, resolve=True))
-    return Mirrors(airframe, cfg.model, coeff)
+    return Mirrors(airframe, cfg.model, coeff, cfg.loss.mirror_reflections == "one")

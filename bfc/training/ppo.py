@@ -72,10 +72,13 @@ class PPO:
             self.optimizer = torch.optim.Adam(self.loss_module.parameters(), lr=o.lr, eps=o.adam_eps, fused=True)
         self.optimizers = [self.optimizer]
 
-    def update(self, data: TensorDictBase) -> dict[str, float]:
-        """GAE once per batch (as CleanRL), then `loss.epochs` passes in shuffled minibatches."""
+    def update(self, data: TensorDictBase, frames: int = 0) -> dict[str, float]:
+        """GAE once per batch (as CleanRL), then `loss.epochs` passes in shuffled minibatches (with
+        the mirror loss once `frames`, those trained on before, reach `loss.mirror_from_frames`)."""
         compute_advantage(data, self.advantage)
-        metrics = self._update_bfc(data) if self.step is not None else self._update_torchrl(data)
+        mirrors = self.mirrors if frames >= self.cfg.loss.mirror_from_frames else None
+        update = self._update_bfc if self.step is not None else self._update_torchrl
+        metrics = update(data, mirrors)
         metrics.setdefault("loss/clip_fraction", 0.0)  # the KL-penalty loss has no clipping
         if isinstance(self.loss_module, KLPENPPOLoss):
             metrics["loss/kl_beta"] = float(self.loss_module.beta)
@@ -88,7 +91,7 @@ class PPO:
             for start in range(0, n, size):
                 yield perm[start : start + size]
 
-    def _update_bfc(self, data: TensorDictBase) -> dict[str, float]:
+    def _update_bfc(self, data: TensorDictBase, mirrors) -> dict[str, float]:
         """Each minibatch one gather from a (frames, columns) table of plain tensors, one PPOStep."""
         step = self.step
         columns = [
@@ -101,24 +104,30 @@ class PPO:
         if step.clip_value is not None:  # the collected value, which clip_value keeps the new one near
             columns.append(data.get("state_value"))
         columns = [c.reshape(data.numel(), -1) for c in columns]
-        m = len(self.mirrors or ())
-        if m:  # the observations in each mirror, side by side (m x size columns)
-            seen = step.observe(self.mirrors.observations(data.get(keys.OBSERVATION).reshape(data.numel(), -1)))
+        views = 0
+        if mirrors is not None:  # the observations in each mirror (or each row's), side by side
+            obs, rows = data.get(keys.OBSERVATION).reshape(data.numel(), -1), torch.arange(data.numel())
+            seen = step.observe(mirrors.observations(obs, mirrors.reflection(rows)))
+            views = seen.shape[0]
             columns.append(seen.transpose(0, 1).flatten(1))
         widths = [c.shape[-1] for c in columns]
         table = torch.cat(columns, -1)
         total, count = torch.zeros(len(PPOStep.METRICS)), 0
         for index in self._minibatches(table.shape[0]):
             obs, action, log_prob, adv, target, *rest = table[index].split(widths, -1)
-            mirrored = rest.pop().view(len(index), m, -1).transpose(0, 1) if m else None
-            total += step(obs, action, log_prob.squeeze(-1), adv, target, *rest, mirrored=mirrored)
+            mirrored = reflection = None
+            if views:
+                mirrored = rest.pop().view(len(index), views, -1).transpose(0, 1)
+                reflection = mirrors.reflection(index)
+            args = (obs, action, log_prob.squeeze(-1), adv, target, *rest)
+            total += step(*args, mirrored=mirrored, reflection=reflection)
             count += 1
         metrics = {LOSS_TAGS[key]: float(value) / count for key, value in zip(PPOStep.METRICS, total, strict=True)}
-        if not m:
+        if not views:
             del metrics["loss/mirror"]
         return metrics
 
-    def _update_torchrl(self, data: TensorDictBase) -> dict[str, float]:
+    def _update_torchrl(self, data: TensorDictBase, mirrors) -> dict[str, float]:
         """TensorDict minibatches through TorchRL's loss module, autograd, torch's clipping and Adam."""
         params, optimizer = list(self.loss_module.parameters()), self.optimizer
         flat = data.select(*_LOSS_KEYS, strict=False).reshape(-1)
@@ -128,12 +137,11 @@ class PPO:
             batch = flat[index]
             out = self.loss_module(batch)
             total = out["loss_objective"] + out["loss_critic"] + out.get("loss_entropy", 0.0)
-            if self.mirrors is not None:
-                obs = batch.get(keys.OBSERVATION)
-                mirrored = self.actor_net.mean(self.mirrors.observations(obs).flatten(0, 1)).view(
-                    len(self.mirrors), len(obs), -1
-                )
-                out["mirror"], _ = self.mirrors.loss(self.actor_net.mean(obs), mirrored)
+            if mirrors is not None:
+                obs, reflection = batch.get(keys.OBSERVATION), mirrors.reflection(index)
+                seen = mirrors.observations(obs, reflection)
+                mirrored = self.actor_net.mean(seen.flatten(0, 1)).view(seen.shape[:2] + (-1,))
+                out["mirror"], _ = mirrors.loss(self.actor_net.mean(obs), mirrored, reflection)
                 total = total + out["mirror"]
             optimizer.zero_grad(set_to_none=True)
             total.backward()

@@ -380,7 +380,7 @@ class Runner:
             batch = data.clone()
             done = data.get(("next", keys.DONE))
             batch.set(("next", keys.REWARD), self.reward_scale(data.get(("next", keys.REWARD)), done))
-        metrics = self.learner.update(batch)
+        metrics = self.learner.update(batch, frames=self.frames - n)
         metrics["train/lr"] = self.learner.optimizers[0].param_groups[0]["lr"]
         if cfg.optim.desired_kl is not None:
             adapt_to_kl(self.learner.optimizers, metrics["loss/approx_kl"], cfg.optim.desired_kl)

@@ -103,7 +103,7 @@ class TRPO:
         self.last_kl = kl
         return {"loss/objective": -float(after), "loss/approx_kl": kl, "loss/step_fraction": fraction}
 
-    def update(self, data) -> dict[str, float]:
+    def update(self, data, frames: int = 0) -> dict[str, float]:
         compute_advantage(data, self.advantage)
         flat = data.reshape(-1)
         obs, action = flat.get(keys.OBSERVATION), flat.get(keys.ACTION)

@@ -188,9 +188,12 @@ def test_negative_frames_fail_with_a_clear_message():
             ["loss.mirror_coeff=1", "algo=trpo"],
             "error: loss.mirror_coeff must be 0 with algo=trpo (the mirror loss is PPO's)",
         ),
+        (["loss.mirror_reflections=some"], "error: loss.mirror_reflections must be 'all' or 'one', got 'some'"),
+        (["loss.mirror_from_frames=-1"], "error: loss.mirror_from_frames must be an integer >= 0"),
+        (["loss.mirror_from_frames=1.5e6"], "error: loss.mirror_from_frames takes an integer, got 1500000.0"),
     ],
 )
-def test_a_bad_mirror_coefficient_is_one_line(overrides, message):
+def test_a_bad_mirror_setting_is_one_line(overrides, message):
     assert one_line_error(run_cli(*overrides)).startswith(message)
 
 

@@ -10,7 +10,7 @@ import torch
 from tensordict.nn import TensorDictModule
 
 from bfc import keys
-from bfc.config import airframe_params
+from bfc.config import airframe_params, compose
 from bfc.evaluation import fly
 from bfc.training.mirror import Mirrors, make_mirrors
 from bfc.training.ppo_step import PPOStep
@@ -128,6 +128,27 @@ def test_the_observation_of_the_mirrored_world_is_the_mapped_observation(kind):
         )
         seen = obs.build(seen_odo, goal, last[:, m], _vector(integral, sx, sy), past[:, :, m])
         torch.testing.assert_close(view, seen, atol=1e-5, rtol=1e-5)
+
+
+def test_one_reflection_a_row_is_the_mirror_loss_over_every_reflection_in_expectation():
+    """`loss.mirror_reflections=one` mirrors row i through reflection i mod m: over the batch taken
+    m times (each row once through each reflection) it is the loss over every reflection, and on
+    the batch alone each row's view is its own reflection's."""
+    cfg = compose(["env.airframe=x500", "loss.mirror_coeff=2", "loss.mirror_reflections=one"])
+    one, every = make_mirrors(cfg), Mirrors(airframe_params("x500"), cfg.model, 2.0)
+    torch.manual_seed(0)
+    obs, loc, net_out = torch.randn(30, one.index.shape[1]), torch.randn(30, 4), torch.randn(3, 30, 4)
+    rows = torch.arange(90)
+    reflection = one.reflection(rows)
+    assert reflection.tolist() == [0, 1, 2] * 30
+    seen = one.observations(obs.repeat_interleave(3, 0), reflection)
+    torch.testing.assert_close(seen[0].view(30, 3, -1).transpose(0, 1), every.observations(obs))
+    mirrored = net_out.transpose(0, 1).reshape(1, 90, 4)  # row i's mean in reflection i mod 3
+    loss_one, grad_one = one.loss(loc.repeat_interleave(3, 0), mirrored, reflection)
+    loss_every, grad_every = every.loss(loc, net_out)
+    torch.testing.assert_close(loss_one, loss_every)
+    torch.testing.assert_close(grad_one.view(30, 3, 4).transpose(0, 1), grad_every)
+    assert one.observations(obs, one.reflection(torch.arange(30))).shape == (1, 30, obs.shape[1])
 
 
 def _asymmetry(probe, net, obs, seen):

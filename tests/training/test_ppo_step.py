@@ -96,6 +96,7 @@ def test_the_step_gives_clip_ppo_losss_values_and_gradients(case):
         ["env.airframe=x500", "loss.mirror_coeff=2"],  # both mirrors and the half turn, bfc's observation
         ["env.airframe=crazyflie", "+preset=paper", "loss.mirror_coeff=0.5"],  # the paper's, statistics, tanh
         ["loss.mirror_coeff=1", "model.squash=true"],  # a "+": the half turn only, a squashed mean
+        ["env.airframe=x500", "loss.mirror_coeff=2", "loss.mirror_reflections=one"],  # one mirror a row
     ],
 )
 def test_the_step_with_mirrors_gives_autograds_gradients_of_the_mirror_loss_too(overrides):
@@ -103,16 +104,23 @@ def test_the_step_with_mirrors_gives_autograds_gradients_of_the_mirror_loss_too(
     pass: its value and every gradient as autograd gives them for ClipPPOLoss plus that loss."""
     cfg, net, actor, critic, loss, flat = _batch(overrides)
     mirrors = make_mirrors(cfg)
-    seen = mirrors.observations(flat["observation"])
+    reflection = mirrors.reflection(torch.arange(flat.numel()))
+    seen = mirrors.observations(flat["observation"], reflection)
     reference = loss(flat)
-    mirror, _ = mirrors.loss(net.mean(flat["observation"]), net.mean(seen))
+    mirror, _ = mirrors.loss(net.mean(flat["observation"]), net.mean(seen), reflection)
     assert float(mirror.detach()) > 0
     total = reference["loss_objective"] + reference["loss_critic"] + reference.get("loss_entropy", 0.0) + mirror
     loss.zero_grad()
     total.backward()
     expected = {id(p): p.grad.clone() for p in loss.parameters()}
     step = PPOStep(loss, actor, critic, lr=0.0, adam_eps=1e-8, max_grad_norm=1e9, mirrors=mirrors)
-    metrics = dict(zip(PPOStep.METRICS, step(*_columns(step, flat), mirrored=step.observe(seen)), strict=True))
+    metrics = dict(
+        zip(
+            PPOStep.METRICS,
+            step(*_columns(step, flat), mirrored=step.observe(seen), reflection=reflection),
+            strict=True,
+        )
+    )
     torch.testing.assert_close(metrics["mirror"], mirror.detach(), rtol=1e-5, atol=1e-8)
     _assert_gradients(step, expected)
 
@@ -195,10 +203,14 @@ def test_both_implementations_update_and_report_the_same_metrics(implementation)
     assert not torch.equal(net.mlp[0].weight, before)
 
 
-def test_both_implementations_take_the_same_update_with_the_mirror_loss():
-    """A whole PPO.update with mirrors (the batch's mirrored columns, their minibatches): bfc's step
-    and TorchRL's loss plus the mirror term under autograd end at the same weights."""
-    cfg, _, actor, critic, _, flat = _batch(["env.airframe=x500", "loss.mirror_coeff=2"])
+@pytest.mark.parametrize("reflections", ["all", "one"])
+def test_both_implementations_take_the_same_update_with_the_mirror_loss(reflections):
+    """A whole PPO.update with mirrors (the batch's mirrored columns, their minibatches, each row's
+    reflection): bfc's step and TorchRL's loss plus the mirror term under autograd end at the same
+    weights."""
+    overrides = ["env.airframe=x500", "loss.mirror_coeff=2", f"loss.mirror_reflections={reflections}"]
+    overrides.append("loss.mirror_from_frames=0")  # the X500's built-in waits for 1M frames
+    cfg, _, actor, critic, _, flat = _batch(overrides)
     data = flat.exclude("advantage", "value_target").reshape(16, -1)
     weights, logged = [], []
     for implementation in ("bfc", "torchrl"):
@@ -210,3 +222,22 @@ def test_both_implementations_take_the_same_update_with_the_mirror_loss():
         logged.append(metrics["loss/mirror"])
     torch.testing.assert_close(weights[0], weights[1], rtol=0, atol=1e-5)
     assert logged[0] == pytest.approx(logged[1], rel=1e-4) and logged[0] > 0
+
+
+def test_the_update_adds_the_mirror_loss_from_mirror_from_frames():
+    """Before `loss.mirror_from_frames` an update is the one without mirrors, weight for weight."""
+    cfg, _, actor, critic, _, flat = _batch(["env.airframe=x500", "loss.mirror_from_frames=1000"])
+    data = flat.exclude("advantage", "value_target").reshape(16, -1)
+
+    def update(coeff, frames):
+        cfg.loss.mirror_coeff = coeff
+        mine, its_critic = copy.deepcopy(actor), copy.deepcopy(critic)
+        torch.manual_seed(5)
+        metrics = PPO(cfg, mine, its_critic).update(data.clone(), frames=frames)
+        return torch.cat([p.detach().reshape(-1) for p in [*mine.parameters(), *its_critic.parameters()]]), metrics
+
+    plain, _ = update(0.0, 999)
+    before, logged_before = update(2.0, 999)
+    after, logged_after = update(2.0, 1000)
+    assert torch.equal(before, plain) and "loss/mirror" not in logged_before
+    assert logged_after["loss/mirror"] > 0 and (after - plain).abs().max() > 1e-4

@@ -175,6 +175,16 @@ def test_tiny_run_with_the_adaptive_kl_loss(tmp_path):
     assert all(b > 0 for b in betas)
 
 
+def test_the_mirror_loss_runs_from_mirror_from_frames(tmp_path):
+    overrides = ["env/airframe=x500", "loss.mirror_coeff=1", "loss.mirror_from_frames=1024", "env.episode_seconds=0.2"]
+    train(compose_cfg([*TINY, *overrides]), tmp_path)
+    ea = EventAccumulator(str(tmp_path / "tb"))
+    ea.Reload()
+    batches = [e.step for e in ea.Scalars("loss/objective")]
+    mirrored = [e.step for e in ea.Scalars("loss/mirror")]
+    assert batches == [512, 1024, 1536, 2048] and mirrored == [1536, 2048]  # the batches after 1024 frames
+
+
 def test_stop_at_success_ends_the_run_after_patience_evaluations(tmp_path):
     # success >= 0 holds at every evaluation: the run stops after the 2nd one
     overrides = [*TINY, "collector.total_frames=8192", "collector.stop_at_success=0.0", "collector.stop_patience=2"]
