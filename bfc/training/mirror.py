@@ -10,9 +10,9 @@ policy hovers closer wherever something pushes it (docs/airframes.md, "X500: the
 "Crazyflie: the mirror loss"). The loss is the mean square of mean(M s) - P mean(s) over every
 reflection the airframe has (AirframeParams.reflections), the mirrored side alone moved (the
 target is held), as rsl_rl does; it changes training only: the network, the policy file and the
-exports are as before. Two cheaper forms, for a user's own trade (tried on the built-ins, not
-kept: docs/training.md): one reflection a row (`loss.mirror_reflections=one`) and the loss from
-`loss.mirror_from_frames` on (PPO.update).
+exports are as before. Two cheaper forms (docs/training.md): one reflection a row
+(`loss.mirror_reflections=one`; no built-in keeps it) and the loss from `loss.mirror_from_frames`
+on (PPO.update; the X500's from 1M frames).
 """
 
 from __future__ import annotations
