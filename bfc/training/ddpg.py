@@ -55,7 +55,7 @@ class QValue(torch.nn.Module):
 
 
 class DDPG:
-    """The DDPG learner: `update(data)` stores the batch, then takes `algo.ddpg.updates_per_batch`
+    """The DDPG learner: `update(data, frames)` stores the batch, then takes `algo.ddpg.updates_per_batch`
     gradient steps on minibatches of `algo.ddpg.batch_size` replayed transitions (the interface of
     bfc.training.learners); its critic is its own Q network (the runner's V critic is unused)."""
 

@@ -41,7 +41,7 @@ def conjugate_gradient(fvp, b: torch.Tensor, iterations: int, tolerance: float =
 
 
 class TRPO:
-    """The TRPO learner: `update(data)` takes one natural-gradient policy step per batch and fits
+    """The TRPO learner: `update(data, frames)` takes one natural-gradient policy step per batch and fits
     the critic. Same interface as `bfc.training.ppo.PPO`."""
 
     def __init__(self, cfg, actor, critic):
