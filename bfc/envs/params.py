@@ -197,7 +197,7 @@ class AirframeParams:
             for x, y, _ in self.rotor_positions:
                 image = [
                     j
-                    for j, ((xj, yj, _), s) in enumerate(zip(self.rotor_positions, self.rotor_spins, strict=True))
+                    for j, (xj, yj, _) in enumerate(self.rotor_positions)
                     if abs(xj - sx * x) < 1e-9 and abs(yj - sy * y) < 1e-9
                 ]
                 motors.append(image[0] if image else None)
