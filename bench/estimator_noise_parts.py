@@ -1,6 +1,8 @@
 """Where the hover error under `suite=hardware`'s noisy estimate comes from: each policy flown on
 the protocol's starts under the whole of `ESTIMATOR_NOISE`, then under each part of it alone (the
-gyro bias, and the white noise on each group of odometry elements).
+gyro bias, and the white noise on each group of odometry elements), then under all of it with the
+white noise scaled (x0.71: the noise power per unit of bandwidth a loop at twice the rate gets
+from the row, whose noise is drawn per control step; x0.5).
 
     python bench/estimator_noise_parts.py pretrained/policy.pt ... [--seed 1 (validation starts)]
 
@@ -11,6 +13,7 @@ seeded with the starts); about 5 s per part per policy on 2 cores.
 from __future__ import annotations
 
 import argparse
+import math
 
 from bfc.evaluation.flying import fly
 from bfc.evaluation.protocol import TEST_SEED
@@ -26,8 +29,12 @@ GROUPS = {  # odometry columns (docs/export.md's layout)
 }
 
 
+WHITE_SCALES = (1 / math.sqrt(2), 0.5)
+
+
 def parts() -> dict:
-    """{label: a `noise` section}: no noise, all of it, the bias alone, each group's white noise alone."""
+    """{label: a `noise` section}: no noise, all of it, the bias alone, each group's white noise
+    alone, all of it with the white noise scaled by each of WHITE_SCALES."""
     zero = [0.0] * 18
 
     def noise(std, bias):
@@ -37,6 +44,9 @@ def parts() -> dict:
     for name, columns in GROUPS.items():
         std = [s if i in columns else 0.0 for i, s in enumerate(ESTIMATOR_NOISE["std"])]
         out[f"{name} white noise only"] = noise(std, zero)
+    for k in WHITE_SCALES:
+        scaled = [k * s for s in ESTIMATOR_NOISE["std"]]
+        out[f"all of it, white noise x{k:.2f}"] = noise(scaled, ESTIMATOR_NOISE["bias"])
     return out
 
 

@@ -146,6 +146,23 @@ def test_protocol_flight_matches_the_torch_policy(models):
     assert position < 1e-3
 
 
+def test_an_onnx_controller_flies_its_own_airframe_and_rate(models):
+    """Handed over as an object, an export flies as its file says: the Crazyflie's body at 50 Hz,
+    not the Hummingbird's at the paper's 250 Hz (a wrapper with no metadata says so itself)."""
+    from bfc.evaluation import fly, protocol_starts, success
+
+    starts = protocol_starts(10, seed=1)
+    policy, onnx = models["crazyflie"]
+    by_torch = fly(str(policy), starts, seconds=4.0)
+    by_onnx = fly(OnnxController(onnx), starts, seconds=4.0)
+    assert by_onnx.shape == by_torch.shape == (10, 200)  # 50 Hz
+    assert success(by_onnx).tolist() == success(by_torch).tolist()
+    position = (by_onnx.get(("state", "position")) - by_torch.get(("state", "position"))).abs().max()
+    assert position < 1e-3
+    with pytest.raises(ValueError, match="trained at 50 Hz"):
+        fly(OnnxController(onnx), starts, seconds=1.0, control_hz=100.0)
+
+
 def test_cli_writes_a_model_and_fails_cleanly(tmp_path, capsys):
     out = tmp_path / "sub" / "policy.onnx"
     assert main([str(PRETRAINED), str(out)]) == 0

@@ -62,7 +62,8 @@ def fly(controller, starts, goal=GOAL, flight: FlightConditions | dict | None = 
     nominal airframe), an exported policy.onnx (flown by onnxruntime at its control rate), a
     controller name registered in `CONTROLLERS` (built for the nominal airframe, whatever body it
     flies), or a TensorDictModule reading `"odometry"`/`"goal"` and writing `"action"` in rad/s
-    (flown at `control_hz`, default 250 Hz as in the paper).
+    (flown at `control_hz`, default 250 Hz as in the paper, on `nominal`, default the Hummingbird;
+    an export's OnnxController or CController at its own rate, an OnnxController on its airframe).
     goal: (x, y, z) or waypoints [(time_s, (x, y, z)), ...].
     Returns a TensorDict (n, T); see `run_flights`.
     """
@@ -76,7 +77,11 @@ def fly(controller, starts, goal=GOAL, flight: FlightConditions | dict | None = 
     if isinstance(controller, (str, bytes)) and str(controller) in CONTROLLERS:
         name = str(controller)
     elif is_module(controller):
-        pass
+        recorded = getattr(controller, "metadata", None)  # an export's controller: fly it as its file says
+        if isinstance(recorded, dict) and "control_hz" in recorded:
+            control_hz = trained_rate(recorded["control_hz"], control_hz, getattr(controller, "path", "this model"))
+        if isinstance(recorded, dict) and "airframe" in recorded and nominal is None:
+            nominal = recorded["airframe"]
     elif is_onnx_path(controller):
         controller, control_hz = onnx_controller(controller, control_hz)
         nominal = controller.metadata["airframe"] if nominal is None else nominal
