@@ -76,15 +76,14 @@ def fly(controller, starts, goal=GOAL, flight: FlightConditions | dict | None = 
     spec, name, control_hz, nominal = None, None, f.control_hz, f.nominal
     if isinstance(controller, (str, bytes)) and str(controller) in CONTROLLERS:
         name = str(controller)
-    elif is_module(controller):
-        recorded = getattr(controller, "metadata", None)  # an export's controller: fly it as its file says
+    elif is_module(controller) or is_onnx_path(controller):
+        if not is_module(controller):
+            controller, control_hz = onnx_controller(controller, control_hz)
+        recorded = getattr(controller, "metadata", None)  # an export's controller flies as its file says
         if isinstance(recorded, dict) and "control_hz" in recorded:
             control_hz = trained_rate(recorded["control_hz"], control_hz, getattr(controller, "path", "this model"))
         if isinstance(recorded, dict) and "airframe" in recorded and nominal is None:
             nominal = recorded["airframe"]
-    elif is_onnx_path(controller):
-        controller, control_hz = onnx_controller(controller, control_hz)
-        nominal = controller.metadata["airframe"] if nominal is None else nominal
     elif isinstance(controller, (str, bytes)) or hasattr(controller, "__fspath__"):
         spec, controller = load_policy(controller)
     else:
