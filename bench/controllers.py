@@ -3,8 +3,8 @@ time to success, errors and compute time per control step (one call for the whol
 
     python bench/controllers.py [--policy pretrained/policy.pt] [--starts 100] [--out DIR]
 
-Flies the policy at its own rate and the baselines at the paper's 250 Hz, each with the default
-heading mode (hold the current heading: the task is yaw-free) and with a fixed heading of yaw 0.
+Flies the policy at its own rate and the baselines (their tuned gains) at the paper's 250 Hz, each
+with the default heading mode (hold the current heading: the task is yaw-free) and with a fixed heading of yaw 0.
 Prints the Markdown tables of the evaluation report; the figures go to --out.
 """
 
@@ -19,7 +19,7 @@ from pathlib import Path
 import torch
 
 from bfc.config import TestProtocolConfig
-from bfc.controllers import LeeController, LeeGains, LinearMPC, MPCParams
+from bfc.controllers import LeeController, LeeGains, LinearMPC, MPCParams, tuned_factors
 from bfc.envs import AirframeParams
 from bfc.evaluation.flying import PROTOCOL_HZ
 from bfc.evaluation.report import controller_sections
@@ -39,8 +39,9 @@ def main() -> None:
         "mpc": "mpc",
         "lee": "lee",
         "lee_i": "lee_i",
-        "mpc_yaw0": LinearMPC(airframe, dt, MPCParams(yaw=0.0)),
-        "lee_yaw0": LeeController(airframe, dt, LeeGains(yaw=0.0)),
+        # the same tuned gains (bfc.controllers.tuned) with the heading held at yaw 0
+        "mpc_yaw0": LinearMPC(airframe, dt, MPCParams(yaw=0.0)).scale_gains(**tuned_factors("mpc", airframe)),
+        "lee_yaw0": LeeController(airframe, dt, LeeGains(yaw=0.0)).scale_gains(**tuned_factors("lee", airframe)),
     }
     out = Path(args.out or tempfile.mkdtemp(prefix="bfc-controllers-"))
     out.mkdir(parents=True, exist_ok=True)

@@ -1,8 +1,9 @@
 """The baselines' gains per built-in airframe: factors on top of each controller's own scaling to
 the airframe, chosen on the validation starts by `python bench/tune_baselines.py --airframe NAME`
 (a grid over the gain groups, scored on the rows of suite=robust and suite=hardware, or as an entry
-says; docs/controllers.md has the grid, the scores and why). An airframe not listed (the
-Hummingbird, whose published RotorS and Kamel sets these are, or a user's own) flies the factors 1.
+says; docs/controllers.md has the grid, the scores and why). On the Hummingbird the factors act
+on the published RotorS and Kamel sets (`build(..., tuned=False)` flies those as published); an
+airframe not listed (a user's own) flies the factors 1.
 
 `CONTROLLERS` (bfc.controllers) builds every baseline through `build`, so `controller=lee` on the
 Crazyflie flies its tuned gains wherever a controller is named: evaluate.py, `fly`, RotorPy.
@@ -16,11 +17,18 @@ from bfc.controllers.mpc import LinearMPC
 from bfc.envs.params import AirframeParams
 
 TUNED: dict[str, dict[str, dict[str, float]]] = {
-    # bench/tune_baselines.py --airframe crazyflie, 30 validation starts per row: the MPC scored on the
-    # 20 rows of both suites, Lee and lee_i on the 12 robust rows (--suites robust)
+    # bench/tune_baselines.py --airframe hummingbird, 30 validation starts per row, each scored on the
+    # 20 rows of both suites (lee_i: the published set scored best)
+    "hummingbird": {
+        "lee": {"position": 2.0, "velocity": 2.0},
+        "lee_i": {},
+        "mpc": {"angular_rate": 0.5},
+    },
+    # bench/tune_baselines.py --airframe crazyflie, 30 validation starts per row, each scored on the
+    # 20 rows of both suites
     "crazyflie": {
-        "lee": {"position": 0.5, "angular_rate": 2.0},
-        "lee_i": {"velocity": 2.0, "angular_rate": 2.0},
+        "lee": {"position": 0.5, "attitude": 0.5},
+        "lee_i": {"velocity": 2.0, "attitude": 0.5},
         "mpc": {"attitude": 0.5, "angular_rate": 0.5},
     },
     # bench/tune_baselines.py --airframe x500, 30 validation starts per row, each scored on the 20

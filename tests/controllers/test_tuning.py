@@ -83,5 +83,11 @@ def test_a_controller_name_flies_the_airframes_tuned_gains(name, airframe):
     by_hand = build(name, a, DT, tuned=False).scale_gains(**tuned_factors(name, a))
     by_hand = by_hand.command(Odometry.parse(odometry), goal)
     torch.testing.assert_close(by_name, by_hand, rtol=0, atol=0)
-    if airframe == "hummingbird":  # the published sets, untouched
-        assert tuned_factors(name, a) == {}
+
+
+def test_the_hummingbirds_factors_act_on_the_published_rotors_set():
+    a = airframe_params("hummingbird")
+    published, tuned = build("lee", a, DT, tuned=False), CONTROLLERS["lee"](a, DT)
+    rotors = torch.tensor((4.0, 4.0, 4.0), dtype=torch.float64)  # lee_controller_hummingbird.yaml, mass ratio 1
+    torch.testing.assert_close(published.kp, rotors, rtol=0, atol=1e-12)
+    torch.testing.assert_close(tuned.kp, rotors * TUNED["hummingbird"]["lee"].get("position", 1.0), rtol=0, atol=1e-12)
