@@ -159,8 +159,10 @@ def test_an_onnx_controller_flies_its_own_airframe_and_rate(models):
     assert success(by_onnx).tolist() == success(by_torch).tolist()
     position = (by_onnx.get(("state", "position")) - by_torch.get(("state", "position"))).abs().max()
     assert position < 1e-3
-    with pytest.raises(ValueError, match="trained at 50 Hz"):
-        fly(OnnxController(onnx), starts, seconds=1.0, control_hz=100.0)
+    assert fly(str(onnx), starts, seconds=1.0).shape == (10, 50)  # its path flies as its object does
+    for controller in (OnnxController(onnx), str(onnx)):
+        with pytest.raises(ValueError, match="trained at 50 Hz"):
+            fly(controller, starts, seconds=1.0, control_hz=100.0)
 
 
 def test_cli_writes_a_model_and_fails_cleanly(tmp_path, capsys):

@@ -78,7 +78,7 @@ def fly(controller, starts, goal=GOAL, flight: FlightConditions | dict | None = 
         name = str(controller)
     elif is_module(controller) or is_onnx_path(controller):
         if not is_module(controller):
-            controller, control_hz = onnx_controller(controller, control_hz)
+            controller = onnx_controller(controller)[0]  # its rate is checked below, as any export's
         recorded = getattr(controller, "metadata", None)  # an export's controller flies as its file says
         if isinstance(recorded, dict) and "control_hz" in recorded:
             control_hz = trained_rate(recorded["control_hz"], control_hz, getattr(controller, "path", "this model"))
