@@ -1,7 +1,7 @@
 """The baselines' gains per built-in airframe: factors on top of each controller's own scaling to
 the airframe, chosen on the validation starts by `python bench/tune_baselines.py --airframe NAME`
-(a grid over the gain groups, scored on the rows of suite=robust and suite=hardware, or as an entry
-says; docs/controllers.md has the grid, the scores and why). On the Hummingbird the factors act
+(a grid over the gain groups, scored on the rows of suite=robust and suite=hardware;
+docs/controllers.md has the grid, the scores and why). On the Hummingbird the factors act
 on the published RotorS and Kamel sets (`build(..., tuned=False)` flies those as published); an
 airframe not listed (a user's own) flies the factors 1.
 
