@@ -10,6 +10,7 @@ from bfc.agent import PolicySpec, load_policy, save_policy
 ROOT = Path(__file__).resolve().parents[1]
 PRETRAINED = ROOT / "pretrained" / "policy.pt"
 CRAZYFLIE = ROOT / "pretrained" / "crazyflie.pt"  # an "x" airframe, its own hover speed and limits
+X500 = ROOT / "pretrained" / "x500.pt"  # a 2.1 kg "x" at 100 Hz, its hover speed 770 rad/s
 # On motor speed / hover speed (the speed map's action units): float32 round-off is ~1e-6.
 TOLERANCE = 1e-5
 

@@ -20,6 +20,7 @@ from tests.export_helpers import (  # noqa: E402
     ROOT,
     SCALED,
     TOLERANCE,
+    X500,
     hover_speed_difference,
     parity_rows,
     random_inputs,
@@ -37,13 +38,14 @@ def models(tmp_path_factory):
     return {
         "pretrained": (PRETRAINED, export_onnx(PRETRAINED, d / "pretrained.onnx")),
         "crazyflie": (CRAZYFLIE, export_onnx(CRAZYFLIE, d / "crazyflie.onnx")),
+        "x500": (X500, export_onnx(X500, d / "x500.onnx")),
         "tiny": (tiny, export_onnx(tiny, d / "tiny.onnx")),
         "normalized": (normalized, export_onnx(normalized, d / "normalized.onnx")),
         "scaled": (scaled, export_onnx(scaled, d / "scaled.onnx")),
     }
 
 
-@pytest.mark.parametrize("name", ["pretrained", "crazyflie", "tiny", "normalized", "scaled"])
+@pytest.mark.parametrize("name", ["pretrained", "crazyflie", "x500", "tiny", "normalized", "scaled"])
 def test_onnx_matches_the_torch_policy(models, name):
     policy_path, onnx_path = models[name]
     spec, _ = load_policy(policy_path)

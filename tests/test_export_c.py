@@ -20,6 +20,7 @@ from tests.export_helpers import (
     ROOT,
     SCALED,
     TOLERANCE,
+    X500,
     hover_speed_difference,
     parity_rows,
     set_statistics,
@@ -105,6 +106,7 @@ def headers(tmp_path_factory):
     return {
         "pretrained": (PRETRAINED, export_c(PRETRAINED, d / "pretrained" / "policy.h")),
         "crazyflie": (CRAZYFLIE, export_c(CRAZYFLIE, d / "crazyflie" / "policy.h")),
+        "x500": (X500, export_c(X500, d / "x500" / "policy.h")),
         "tiny": (tiny, export_c(tiny, d / "tiny" / "policy.h")),
         "scaled": (scaled, export_c(scaled, d / "scaled" / "policy.h")),
     }
@@ -134,7 +136,7 @@ TARGETS = [pytest.param("host", marks=needs_cc), pytest.param("cortex-m4", marks
 
 
 @pytest.mark.parametrize("target", TARGETS)
-@pytest.mark.parametrize("name", ["pretrained", "crazyflie", "tiny", "scaled"])
+@pytest.mark.parametrize("name", ["pretrained", "crazyflie", "x500", "tiny", "scaled"])
 def test_compiled_header_matches_the_torch_policy(headers, name, target):
     """On this machine and on the Crazyflie's instruction set (an emulated Cortex-M4F, whose libm
     and float code differ from the host's in the last bits: it is held to the same bound against
