@@ -19,7 +19,7 @@ from pathlib import Path
 import torch
 
 from bfc.config import TestProtocolConfig
-from bfc.controllers import LeeController, LeeGains, LinearMPC, MPCParams, tuned_factors
+from bfc.controllers import LeeGains, MPCParams, build
 from bfc.envs import AirframeParams
 from bfc.evaluation.flying import PROTOCOL_HZ
 from bfc.evaluation.report import controller_sections
@@ -40,8 +40,8 @@ def main() -> None:
         "lee": "lee",
         "lee_i": "lee_i",
         # the same tuned gains (bfc.controllers.tuned) with the heading held at yaw 0
-        "mpc_yaw0": LinearMPC(airframe, dt, MPCParams(yaw=0.0)).scale_gains(**tuned_factors("mpc", airframe)),
-        "lee_yaw0": LeeController(airframe, dt, LeeGains(yaw=0.0)).scale_gains(**tuned_factors("lee", airframe)),
+        "mpc_yaw0": build("mpc", airframe, dt, config=MPCParams(yaw=0.0)),
+        "lee_yaw0": build("lee", airframe, dt, config=LeeGains(yaw=0.0)),
     }
     out = Path(args.out or tempfile.mkdtemp(prefix="bfc-controllers-"))
     out.mkdir(parents=True, exist_ok=True)

@@ -52,8 +52,9 @@ def tuned_factors(name: str, airframe: AirframeParams) -> dict[str, float]:
     return dict(TUNED.get(airframe.name, {}).get(name, {}))
 
 
-def build(name: str, airframe: AirframeParams, dt: float, tuned: bool = True) -> Controller:
+def build(name: str, airframe: AirframeParams, dt: float, tuned: bool = True, config=None) -> Controller:
     """Baseline `name` for `airframe` at period `dt`, with the airframe's tuned gains (tuned=False:
-    without them, as the tuning grid starts)."""
-    controller = MAKERS[name](airframe, dt)
+    without them, as the tuning grid starts). `config`: the maker's own settings where it takes
+    them (lee: LeeGains, mpc: MPCParams, e.g. a fixed heading), tuned the same way."""
+    controller = MAKERS[name](airframe, dt) if config is None else MAKERS[name](airframe, dt, config)
     return controller.scale_gains(**tuned_factors(name, airframe)) if tuned else controller

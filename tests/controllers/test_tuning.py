@@ -7,7 +7,7 @@ import pytest
 import torch
 
 from bfc.config import airframe_params, builtin_airframes
-from bfc.controllers import CONTROLLERS, TUNED, LeeController, LinearMPC, build, tuned_factors
+from bfc.controllers import CONTROLLERS, TUNED, LeeController, LeeGains, LinearMPC, build, tuned_factors
 from bfc.controllers.base import Odometry
 from bfc.evaluation import fly, protocol_starts
 
@@ -91,3 +91,6 @@ def test_the_hummingbirds_factors_act_on_the_published_rotors_set():
     rotors = torch.tensor((4.0, 4.0, 4.0), dtype=torch.float64)  # lee_controller_hummingbird.yaml, mass ratio 1
     torch.testing.assert_close(published.kp, rotors, rtol=0, atol=1e-12)
     torch.testing.assert_close(tuned.kp, rotors * TUNED["hummingbird"]["lee"].get("position", 1.0), rtol=0, atol=1e-12)
+    held = build("lee", a, DT, config=LeeGains(yaw=0.0))  # its own settings, tuned the same way
+    assert held.gains.yaw == 0.0
+    torch.testing.assert_close(held.kp, tuned.kp, rtol=0, atol=0)
