@@ -8,7 +8,8 @@ Draws `--num-drawn` any-attitude starts (z 1.5-3 m, at rest, uniform attitude) w
 keeps those tilted more than `--min-tilt` degrees, flies each policy from them for 10 s on the
 reference simulator and prints the success rate (the protocol's judge). Deterministic; with
 `--sampled S` the policies fly actions drawn from their Gaussians (the trained std, torch seed S)
-instead of their means: a check of whether failures sit on a tie that noise would break.
+instead of their means: a check of whether failures sit on a tie that noise would break. With
+`--by-tilt 150 160 170 175` it also prints the rate in each band of tilt (150-160, ..., 175-180).
 """
 
 from __future__ import annotations
@@ -51,16 +52,27 @@ def main() -> None:
     p.add_argument("--num-drawn", type=int, default=1000)
     p.add_argument("--min-tilt", type=float, default=120.0, help="degrees between the body and world z axes")
     p.add_argument("--sampled", type=int, default=None, metavar="S", help="fly sampled actions (torch seed S)")
+    p.add_argument(
+        "--by-tilt", type=float, nargs="+", default=None, metavar="DEG", help="also the rate per tilt band (edges)"
+    )
     args = p.parse_args()
     if args.seed in (0, 1):
         p.error("seeds 0 and 1 are the test and validation starts: pick a development seed")
     starts = any_starts(args.num_drawn, args.seed)
     starts = starts[start_tilt_degrees(starts) > args.min_tilt]
     print(f"# {len(starts)} of {args.num_drawn} any-attitude starts (seed {args.seed}) tilted > {args.min_tilt:g} deg")
+    tilt = start_tilt_degrees(starts)
+    bands = list(zip(args.by_tilt, [*args.by_tilt[1:], 180.0], strict=True)) if args.by_tilt else []
+    if bands:
+        print(
+            "# starts per band: "
+            + ", ".join(f"{lo:g}-{hi:g} deg {int(((tilt > lo) & (tilt <= hi)).sum())}" for lo, hi in bands)
+        )
     for path in args.policies:
         with sampled_actions(args.sampled):
-            rate = success(fly(path, starts, seconds=10.0, seed=args.seed)).float().mean().item()
-        print(f"{path}: {rate:.3f} recovered")
+            ok = success(fly(path, starts, seconds=10.0, seed=args.seed)).float()
+        per_band = [f"{lo:g}-{hi:g} deg {ok[(tilt > lo) & (tilt <= hi)].mean().item():.3f}" for lo, hi in bands]
+        print(f"{path}: {ok.mean().item():.3f} recovered" + (f" ({', '.join(per_band)})" if per_band else ""))
 
 
 if __name__ == "__main__":

@@ -225,6 +225,9 @@ class LossConfig:
     # the mirror loss from this frame on (0: from the first batch): the first flights are learned at
     # the update's full speed, the symmetry taught after
     mirror_from_frames: int = 0
+    # degrees: the mirror loss only on rows tilted at most this from upright (180: every row). Upside
+    # down a policy that is its own mirror image has no side to turn over to (docs/training.md)
+    mirror_max_tilt: float = 180.0
     critic_coeff: float = 0.5
     critic_loss: str = "l2"  # l2 | l1 | smooth_l1: TorchRL's loss_critic_type
     # ClipPPOLoss's clip_value: the new value kept within this of the collected one (Baselines'
@@ -829,6 +832,12 @@ def validate(cfg) -> None:
         "loss.mirror_from_frames",
         "an integer >= 0 (the frames after which the mirror loss runs)",
         lo.mirror_from_frames,
+    )
+    check(
+        isinstance(lo.mirror_max_tilt, (int, float)) and 0 < lo.mirror_max_tilt <= 180,
+        "loss.mirror_max_tilt",
+        "degrees in (0, 180] (180: every row)",
+        lo.mirror_max_tilt,
     )
     check(
         lo.mirror_coeff == 0 or cfg.algo.name == "ppo",

@@ -12,15 +12,18 @@ reflection the airframe has (AirframeParams.reflections), the mirrored side alon
 target is held), as rsl_rl does; it changes training only: the network, the policy file and the
 exports are as before. Two cheaper forms (docs/training.md): one reflection a row
 (`loss.mirror_reflections=one`; no built-in keeps it) and the loss from `loss.mirror_from_frames`
-on (PPO.update; the X500's from 1M frames).
+on (PPO.update; the X500's from 1M frames). `loss.mirror_max_tilt` leaves the rows tilted more than
+that from upright out: there a mirror-symmetric policy has no side to turn over to.
 """
 
 from __future__ import annotations
 
+import math
+
 import torch
 
 from bfc.envs.params import AirframeParams
-from bfc.transforms.observation import mirror_map
+from bfc.transforms.observation import cos_tilt, mirror_map
 
 
 class Mirrors:
@@ -29,8 +32,9 @@ class Mirrors:
     reflections in turn by the row's place in the batch (`loss.mirror_reflections=one`), not
     through all of them: the same loss in expectation at a third of the mirrored rows of an "x"."""
 
-    def __init__(self, airframe: AirframeParams, model, coeff: float, one: bool = False):
+    def __init__(self, airframe: AirframeParams, model, coeff: float, one: bool = False, max_tilt: float = 180.0):
         self.coeff, self.one = float(coeff), bool(one)
+        self.kind, self.max_tilt = model.observation, float(max_tilt)
         maps = [
             (
                 *mirror_map(
@@ -56,6 +60,13 @@ class Mirrors:
         None (every reflection)."""
         return rows % len(self) if self.one else None
 
+    def kept(self, obs: torch.Tensor) -> torch.Tensor | None:
+        """(n,) 1 for the raw observations `obs` (n, size) the loss holds (tilted at most max_tilt
+        from upright), 0 for the others; None: every row (max_tilt 180)."""
+        if self.max_tilt >= 180:
+            return None
+        return (cos_tilt(obs, self.kind) >= math.cos(math.radians(self.max_tilt))).to(obs.dtype)
+
     def observations(self, obs: torch.Tensor, reflection: torch.Tensor | None = None) -> torch.Tensor:
         """(m, n, size): `obs` (n, size) seen in each of the m mirrors; with `reflection` (n,),
         (1, n, size): each row in its own."""
@@ -69,10 +80,13 @@ class Mirrors:
             return loc[:, self.motors].transpose(0, 1)
         return loc.gather(1, self.motors[reflection]).unsqueeze(0)
 
-    def loss(self, loc, mirrored_loc, reflection=None) -> tuple[torch.Tensor, torch.Tensor]:
+    def loss(self, loc, mirrored_loc, reflection=None, kept=None) -> tuple[torch.Tensor, torch.Tensor]:
         """(loss, d loss / d mirrored_loc): coeff * mean square of `mirrored_loc` (m, n, 4), the means
-        on the mirrored observations, against the mirror of `loc` (n, 4), held."""
+        on the mirrored observations, against the mirror of `loc` (n, 4), held; `kept` (n,), from
+        `kept`, zeroes the rows the loss does not hold (the mean still over all n)."""
         diff = mirrored_loc - self.actions(loc.detach(), reflection)
+        if kept is not None:
+            diff = diff * kept.unsqueeze(-1)
         return self.coeff * diff.square().mean(), diff * (2 * self.coeff / diff.numel())
 
 
@@ -84,4 +98,5 @@ def make_mirrors(cfg) -> Mirrors | None:
     from omegaconf import OmegaConf
 
     airframe = AirframeParams(**OmegaConf.to_container(cfg.env.airframe, resolve=True))
-    return Mirrors(airframe, cfg.model, coeff, cfg.loss.mirror_reflections == "one")
+    one = cfg.loss.mirror_reflections == "one"
+    return Mirrors(airframe, cfg.model, coeff, one, float(cfg.loss.mirror_max_tilt))

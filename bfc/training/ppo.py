@@ -104,11 +104,11 @@ class PPO:
         if step.clip_value is not None:  # the collected value, which clip_value keeps the new one near
             columns.append(data.get("state_value"))
         columns = [c.reshape(data.numel(), -1) for c in columns]
-        views = 0
+        views, kept = 0, None
         if mirrors is not None:  # the observations in each mirror (or each row's), side by side
             obs, rows = data.get(keys.OBSERVATION).reshape(data.numel(), -1), torch.arange(data.numel())
             seen = step.observe(mirrors.observations(obs, mirrors.reflection(rows)))
-            views = seen.shape[0]
+            views, kept = seen.shape[0], mirrors.kept(obs)
             columns.append(seen.transpose(0, 1).flatten(1))
         widths = [c.shape[-1] for c in columns]
         table = torch.cat(columns, -1)
@@ -120,7 +120,8 @@ class PPO:
                 mirrored = rest.pop().view(len(index), views, -1).transpose(0, 1)
                 reflection = mirrors.reflection(index)
             args = (obs, action, log_prob.squeeze(-1), adv, target, *rest)
-            total += step(*args, mirrored=mirrored, reflection=reflection)
+            rows_kept = None if kept is None else kept[index]
+            total += step(*args, mirrored=mirrored, reflection=reflection, kept=rows_kept)
             count += 1
         metrics = {LOSS_TAGS[key]: float(value) / count for key, value in zip(PPOStep.METRICS, total, strict=True)}
         if not views:
@@ -141,7 +142,7 @@ class PPO:
                 obs, reflection = batch.get(keys.OBSERVATION), mirrors.reflection(index)
                 seen = mirrors.observations(obs, reflection)
                 mirrored = self.actor_net.mean(seen.flatten(0, 1)).view(seen.shape[:2] + (-1,))
-                out["mirror"], _ = mirrors.loss(self.actor_net.mean(obs), mirrored, reflection)
+                out["mirror"], _ = mirrors.loss(self.actor_net.mean(obs), mirrored, reflection, mirrors.kept(obs))
                 total = total + out["mirror"]
             optimizer.zero_grad(set_to_none=True)
             total.backward()

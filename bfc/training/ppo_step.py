@@ -155,12 +155,21 @@ class PPOStep:
 
     @torch.no_grad()
     def __call__(
-        self, obs, action, old_log_prob, advantage, value_target, old_value=None, mirrored=None, reflection=None
+        self,
+        obs,
+        action,
+        old_log_prob,
+        advantage,
+        value_target,
+        old_value=None,
+        mirrored=None,
+        reflection=None,
+        kept=None,
     ):
         """One step on a minibatch of (n, .) columns (`obs` already through `observe`; `mirrored`,
         with mirrors, (m, n, size): the observations in each mirror, through `observe` too, or
-        (1, n, size) with `reflection` (n,), the one each row went through); returns the METRICS
-        as one tensor."""
+        (1, n, size) with `reflection` (n,), the one each row went through; `kept` (n,): the rows
+        the mirror loss holds, Mirrors.kept); returns the METRICS as one tensor."""
         n = obs.shape[0]
         advantage = ((advantage - advantage.mean()) / advantage.std().clamp_min(self.eps)).squeeze(-1)
         # the actor: log N(action; loc, scale) and the clipped surrogate (and, with mirrors, its
@@ -190,7 +199,8 @@ class PPOStep:
         self.grad_log_std.copy_(grad_log_std)
         mirror = torch.zeros(())
         if mirrored is not None:
-            mirror, grad_mirrored = self.mirrors.loss(loc, loc_all[n:].view(mirrored.shape[0], n, -1), reflection)
+            mirrored_loc = loc_all[n:].view(mirrored.shape[0], n, -1)
+            mirror, grad_mirrored = self.mirrors.loss(loc, mirrored_loc, reflection, kept)
             grad_mirrored = grad_mirrored.flatten(0, 1)
             if self.squash:
                 grad_mirrored = grad_mirrored * (1 - loc_all[n:].square())

@@ -99,6 +99,14 @@ def mirror_map(
     return torch.tensor(idx), torch.tensor(sign, dtype=torch.float32)
 
 
+def cos_tilt(obs: torch.Tensor, kind: str) -> torch.Tensor:
+    """(...,): the cosine of each raw (unnormalised) observation's tilt from upright, read from its
+    attitude: bfc's rotation matrix's last element, or the paper's roll and pitch."""
+    if kind == "odometry":
+        return obs[..., 9].cos() * obs[..., 10].cos()  # position, velocity, acceleration, then roll, pitch
+    return obs[..., 11]  # the position (3), then Ry(pitch) Rx(roll) row by row: its (3, 3) is cos tilt
+
+
 def check_history(command_history) -> None:
     whole = isinstance(command_history, int) and not isinstance(command_history, bool)
     check(whole and 0 <= command_history <= 50, "model.command_history", "a whole number 0-50", command_history)

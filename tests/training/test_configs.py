@@ -190,6 +190,8 @@ def test_negative_frames_fail_with_a_clear_message():
         ),
         (["loss.mirror_reflections=some"], "error: loss.mirror_reflections must be 'all' or 'one', got 'some'"),
         (["loss.mirror_from_frames=-1"], "error: loss.mirror_from_frames must be an integer >= 0"),
+        (["loss.mirror_max_tilt=0"], "error: loss.mirror_max_tilt must be degrees in (0, 180]"),
+        (["loss.mirror_max_tilt=200"], "error: loss.mirror_max_tilt must be degrees in (0, 180]"),
         (["loss.mirror_from_frames=1.5e6"], "error: loss.mirror_from_frames takes an integer, got 1500000.0"),
     ],
 )

@@ -14,7 +14,7 @@ from bfc.config import airframe_params, compose
 from bfc.evaluation import fly
 from bfc.training.mirror import Mirrors, make_mirrors
 from bfc.training.ppo_step import PPOStep
-from bfc.transforms.observation import PolicyObservation, observation_size
+from bfc.transforms.observation import PolicyObservation, cos_tilt, observation_size
 from tests.training.test_ppo_step import _batch, _columns
 
 
@@ -128,6 +128,24 @@ def test_the_observation_of_the_mirrored_world_is_the_mapped_observation(kind):
         )
         seen = obs.build(seen_odo, goal, last[:, m], _vector(integral, sx, sy), past[:, :, m])
         torch.testing.assert_close(view, seen, atol=1e-5, rtol=1e-5)
+
+
+@pytest.mark.parametrize("kind", ["heading", "odometry"])
+def test_cos_tilt_reads_each_observations_tilt_from_upright(kind):
+    """`loss.mirror_max_tilt` judges a row by cos_tilt of its observation: the tilt of the body z
+    axis from the vertical, cos(roll) cos(pitch), whatever the yaw, for bfc's and the paper's."""
+    n = 64
+    obs = PolicyObservation(n, hover_speed=500.0, position_integral=True, kind=kind, command_history=2)
+    torch.manual_seed(2)
+    odo = torch.randn(n, 18)
+    odo[:, 9:12] = torch.rand(n, 3) * torch.tensor([2 * math.pi, math.pi, 2 * math.pi]) - torch.tensor(
+        [math.pi, math.pi / 2, math.pi]
+    )
+    goal = torch.tensor([0.0, 0.0, 1.5]).expand(n, 3)
+    plain = obs.build(odo, goal, torch.zeros(n, 4), torch.zeros(n, 3), torch.zeros(n, 2, 4))
+    want = odo[:, 9].cos() * odo[:, 10].cos()
+    torch.testing.assert_close(cos_tilt(plain, kind), want, atol=1e-6, rtol=1e-6)
+    assert (want < -0.5).any() and (want > 0.5).any()  # upright and upside-down rows both
 
 
 def test_one_reflection_a_row_is_the_mirror_loss_over_every_reflection_in_expectation():

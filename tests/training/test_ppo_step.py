@@ -14,6 +14,7 @@ from bfc.training.advantage import compute_advantage
 from bfc.training.mirror import make_mirrors
 from bfc.training.ppo import PPO, make_loss
 from bfc.training.ppo_step import PPOStep
+from bfc.transforms.observation import cos_tilt
 
 # The bound: each gradient within 1e-5 of its parameter's largest |gradient|. Not bit for bit: the
 # surrogate's gradient is formed in one expression where autograd chains five, the entropy's is
@@ -125,6 +126,34 @@ def test_the_step_with_mirrors_gives_autograds_gradients_of_the_mirror_loss_too(
     _assert_gradients(step, expected)
 
 
+def test_the_mirror_loss_holds_only_the_rows_within_mirror_max_tilt():
+    """`loss.mirror_max_tilt`: a row tilted more than it from upright adds nothing to the mirror loss
+    (value or gradient), a row within it what it adds without the bound; the step's gradients are
+    still autograd's."""
+    cfg, net, actor, critic, loss, flat = _batch(["env.airframe=x500", "loss.mirror_coeff=2"])
+    obs = flat["observation"]
+    tilt = torch.rad2deg(torch.acos(cos_tilt(obs, cfg.model.observation).clamp(-1, 1)))
+    bound = float(tilt.median())  # half the rows each side
+    free = make_mirrors(cfg)  # every row (the default 180)
+    assert free.kept(obs) is None
+    cfg.loss.mirror_max_tilt = bound
+    bounded = make_mirrors(cfg)
+    kept = bounded.kept(obs)
+    assert torch.equal(kept.bool(), tilt <= bound) and 0 < int(kept.sum()) < len(kept)
+    seen = free.observations(obs)
+    each = [free.loss(net.mean(obs[i : i + 1]), net.mean(seen[:, i : i + 1]))[0] for i in range(len(obs))]
+    mirror, _ = bounded.loss(net.mean(obs), net.mean(seen), None, kept)
+    torch.testing.assert_close(mirror, torch.stack(each)[kept.bool()].sum() / len(obs), rtol=1e-5, atol=1e-9)
+    reference = loss(flat)
+    total = reference["loss_objective"] + reference["loss_critic"] + reference.get("loss_entropy", 0.0) + mirror
+    loss.zero_grad()
+    total.backward()
+    expected = {id(p): p.grad.clone() for p in loss.parameters()}
+    step = PPOStep(loss, actor, critic, lr=0.0, adam_eps=1e-8, max_grad_norm=1e9, mirrors=bounded)
+    step(*_columns(step, flat), mirrored=step.observe(seen), kept=kept)
+    _assert_gradients(step, expected)
+
+
 def test_a_step_moves_the_weights_as_torchs_adam_after_clipping():
     """One step at the default's rate and clipping: the weights land where torch's Adam puts them
     with ClipPPOLoss's gradients clipped by clip_grad_norm_."""
@@ -203,12 +232,13 @@ def test_both_implementations_update_and_report_the_same_metrics(implementation)
     assert not torch.equal(net.mlp[0].weight, before)
 
 
-@pytest.mark.parametrize("reflections", ["all", "one"])
-def test_both_implementations_take_the_same_update_with_the_mirror_loss(reflections):
+@pytest.mark.parametrize("reflections, max_tilt", [("all", 180), ("one", 180), ("all", 60)])
+def test_both_implementations_take_the_same_update_with_the_mirror_loss(reflections, max_tilt):
     """A whole PPO.update with mirrors (the batch's mirrored columns, their minibatches, each row's
-    reflection): bfc's step and TorchRL's loss plus the mirror term under autograd end at the same
-    weights."""
+    reflection, the rows `loss.mirror_max_tilt` keeps): bfc's step and TorchRL's loss plus the
+    mirror term under autograd end at the same weights."""
     overrides = ["env.airframe=x500", "loss.mirror_coeff=2", f"loss.mirror_reflections={reflections}"]
+    overrides.append(f"loss.mirror_max_tilt={max_tilt}")
     overrides.append("loss.mirror_from_frames=0")  # the X500's built-in waits for 1M frames
     cfg, _, actor, critic, _, flat = _batch(overrides)
     data = flat.exclude("advantage", "value_target").reshape(16, -1)
