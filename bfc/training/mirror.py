@@ -83,7 +83,7 @@ class Mirrors:
     def loss(self, loc, mirrored_loc, reflection=None, kept=None) -> tuple[torch.Tensor, torch.Tensor]:
         """(loss, d loss / d mirrored_loc): coeff * mean square of `mirrored_loc` (m, n, 4), the means
         on the mirrored observations, against the mirror of `loc` (n, 4), held; `kept` (n,), from
-        `kept`, zeroes the rows the loss does not hold (the mean still over all n)."""
+        Mirrors.kept, zeroes the rows the loss does not hold (the mean still over all n)."""
         diff = mirrored_loc - self.actions(loc.detach(), reflection)
         if kept is not None:
             diff = diff * kept.unsqueeze(-1)
