@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import argparse
 import math
+from pathlib import Path
 
 import torch
 from scipy.stats import binom, binomtest
@@ -51,7 +52,7 @@ def crashes_at_wall(flights) -> tuple[int, int]:
 
 def rate_line(label: str, row: str, n: int, seed: int, airframe) -> str:
     flights = fly_condition(label, row, n, seed=seed, airframe=airframe)
-    k = int(judge(flights, 0.10, 1.0).success.sum())
+    k = int(judge(flights).success.sum())  # the protocol's rule
     ci = binomtest(k, n).proportion_ci(confidence_level=0.95, method="wilson")
     crashes, wall = crashes_at_wall(flights)
     interval = f"{ci.low:.3f}-{ci.high:.3f}"
@@ -80,9 +81,14 @@ def main() -> None:
     for c in args.controllers:
         if not c.endswith(".pt") and c not in CONTROLLER_NAMES:
             p.error(f"{c!r} is neither a policy file (.pt) nor a controller ({', '.join(sorted(CONTROLLER_NAMES))})")
+        if c.endswith(".pt") and not Path(c).is_file():
+            p.error(f"no policy file {c}")
     if any(n < 1 for n in args.starts):
         p.error("--starts takes counts >= 1")
-    airframe = airframe_params(args.airframe) if args.airframe else None
+    try:
+        airframe = airframe_params(args.airframe) if args.airframe else None
+    except (ValueError, FileNotFoundError) as err:
+        p.error(str(err))
     tilts = " | ".join(f"released > {d:g} deg" for d in TILTS_DEG)
     print(f"| controller | row | starts | successes | rate | 95% interval | crashes (out of the box) | {tilts} |")
     print("|---|---|---|---|---|---|---|" + "---|" * len(TILTS_DEG))
