@@ -58,6 +58,9 @@ def main() -> None:
     args = p.parse_args()
     if args.seed in (0, 1):
         p.error("seeds 0 and 1 are the test and validation starts: pick a development seed")
+    edges = args.by_tilt or []
+    if any(not 0 <= e < 180 for e in edges) or edges != sorted(set(edges)):
+        p.error(f"--by-tilt takes rising band edges in [0, 180) degrees, got {edges}")
     starts = any_starts(args.num_drawn, args.seed)
     starts = starts[start_tilt_degrees(starts) > args.min_tilt]
     print(f"# {len(starts)} of {args.num_drawn} any-attitude starts (seed {args.seed}) tilted > {args.min_tilt:g} deg")

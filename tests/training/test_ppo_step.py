@@ -241,6 +241,8 @@ def test_both_implementations_take_the_same_update_with_the_mirror_loss(reflecti
     overrides.append(f"loss.mirror_max_tilt={max_tilt}")
     overrides.append("loss.mirror_from_frames=0")  # the X500's built-in waits for 1M frames
     cfg, _, actor, critic, _, flat = _batch(overrides)
+    kept = make_mirrors(cfg).kept(flat["observation"])
+    assert kept is None if max_tilt == 180 else 0 < int(kept.sum()) < len(kept)  # rows on both sides of it
     data = flat.exclude("advantage", "value_target").reshape(16, -1)
     weights, logged = [], []
     for implementation in ("bfc", "torchrl"):
